@@ -1,1 +1,205 @@
-fn main(){}
+//! `eval`: trajectory evaluation that agrees with evo.
+//!
+//! ```text
+//! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
+//! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
+//! ```
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand};
+use sdf_slam::metrics::{self, Alignment, DeltaUnit, PoseError, Stats};
+use sdf_slam::plot;
+use sdf_slam::trajectory::Trajectory;
+use serde_json::json;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "eval",
+    version,
+    about = "Evaluate trajectories (ATE / RPE as evo computes them)"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Absolute trajectory error (evo_ape, translation part).
+    Ate(TrajArgs),
+    /// Relative pose error (evo_rpe), translation (m) and rotation (deg), plus
+    /// the paper's errT (%) / errR (deg/m) over the same frame delta.
+    Rpe {
+        #[command(flatten)]
+        traj: TrajArgs,
+        /// Distance between the two poses of a pair.
+        #[arg(long, default_value_t = 1.0)]
+        delta: f64,
+        /// Unit of --delta.
+        #[arg(long, default_value = "frames")]
+        delta_unit: DeltaUnit,
+    },
+}
+
+#[derive(Args)]
+struct TrajArgs {
+    /// Reference (ground-truth) trajectory, TUM format.
+    reference: PathBuf,
+    /// Estimated trajectory, TUM format.
+    estimate: PathBuf,
+    /// Alignment of the estimate: se3 (evo -a), sim3 (evo -as), scale (evo -s), none.
+    #[arg(long, default_value = "none")]
+    align: Alignment,
+    /// Maximum timestamp difference for associating poses, seconds (evo --t_max_diff).
+    #[arg(long, default_value_t = 0.01)]
+    t_max_diff: f64,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write a plot: both trajectories seen from above after alignment, and the error over time.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+}
+
+fn align_name(a: Alignment) -> &'static str {
+    match a {
+        Alignment::None => "not aligned",
+        Alignment::Se3 => "SE(3) Umeyama alignment",
+        Alignment::Sim3 => "Sim(3) Umeyama alignment",
+        Alignment::Scale => "scale corrected",
+    }
+}
+
+fn stats_json(s: &Stats) -> serde_json::Value {
+    json!({"rmse": s.rmse, "mean": s.mean, "median": s.median, "std": s.std,
+           "min": s.min, "max": s.max, "pairs": s.pairs})
+}
+
+fn print_stats(title: &str, unit: &str, s: &Stats) {
+    println!("{title}");
+    for (k, v) in [
+        ("rmse", s.rmse),
+        ("mean", s.mean),
+        ("median", s.median),
+        ("std", s.std),
+        ("min", s.min),
+        ("max", s.max),
+    ] {
+        println!("  {k:>8}  {v:.6} {unit}");
+    }
+    println!();
+}
+
+fn read(path: &PathBuf) -> Result<Trajectory> {
+    Ok(Trajectory::read_tum(path)?)
+}
+
+fn write_json(path: &PathBuf, value: &serde_json::Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    sdf_slam::io::write_atomic(path, text.as_bytes())?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+fn relative_stamps(t: &Trajectory) -> Vec<f64> {
+    let t0 = t.stamps.first().copied().unwrap_or(0.0);
+    t.stamps.iter().map(|s| s - t0).collect()
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Ate(a) => {
+            let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
+            let r = metrics::ape(&gt, &est, a.align, a.t_max_diff).context("ATE failed")?;
+            println!(
+                "ATE w.r.t. translation part (m), {} — {} pose pairs of max. {} (t_max_diff {} s)",
+                align_name(a.align),
+                r.stats.pairs,
+                gt.len().min(est.len()),
+                a.t_max_diff
+            );
+            if a.align == Alignment::Sim3 || a.align == Alignment::Scale {
+                println!("  scale correction: {:.6}", r.alignment.scale);
+            }
+            print_stats("", "m", &r.stats);
+            if let Some(p) = &a.json {
+                let mut v = json!({"ate": stats_json(&r.stats)});
+                v["alignment"] = json!({"method": a.align, "scale": r.alignment.scale});
+                write_json(p, &v)?;
+            }
+            if let Some(p) = &a.plot {
+                let (rp, ep) = (r.reference.positions(), r.estimate.positions());
+                let t = relative_stamps(&r.reference);
+                let title = format!("ATE rmse {:.4} m ({})", r.stats.rmse, align_name(a.align));
+                plot::trajectory_figure(
+                    p,
+                    &title,
+                    &[("reference", &rp), ("estimate", &ep)],
+                    Some(("ATE (m)", &t, &r.errors)),
+                )?;
+                println!("wrote {}", p.display());
+            }
+        }
+        Command::Rpe {
+            traj: a,
+            delta,
+            delta_unit,
+        } => {
+            let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
+            let r = metrics::rpe(&gt, &est, a.align, a.t_max_diff, delta, delta_unit)
+                .context("RPE failed")?;
+            let unit = match delta_unit {
+                DeltaUnit::Frames => "frames",
+                DeltaUnit::Metres => "m",
+            };
+            println!(
+                "RPE for delta = {delta} ({unit}) using consecutive pairs, {} — {} pairs",
+                align_name(a.align),
+                r.trans.pairs
+            );
+            print_stats("translation part (m)", "m", &r.trans);
+            print_stats("rotation angle (deg)", "deg", &r.rot_deg);
+            let paper = match delta_unit {
+                DeltaUnit::Frames => {
+                    PoseError::over_frames(&r.reference, &r.estimate, delta as usize).ok()
+                }
+                DeltaUnit::Metres => None,
+            };
+            if let Some(e) = &paper {
+                println!(
+                    "paper eqs 11-14 over {}-frame segments: errT {:.3} %  errR {:.4} deg/m  ({} segments, {:.3} m)",
+                    delta, e.err_t_percent, e.err_r_deg_per_m, e.segments, e.total_length
+                );
+            }
+            if let Some(p) = &a.json {
+                let mut v = json!({"rpe_trans": stats_json(&r.trans), "rpe_rot_deg": stats_json(&r.rot_deg)});
+                v["delta"] = json!({"value": delta, "unit": delta_unit});
+                v["alignment"] = json!({"method": a.align, "scale": r.alignment.scale});
+                if let Some(e) = &paper {
+                    v["paper"] = serde_json::to_value(e)?;
+                }
+                write_json(p, &v)?;
+            }
+            if let Some(p) = &a.plot {
+                let (rp, ep) = (r.reference.positions(), r.estimate.positions());
+                let t0 = r.reference.stamps[0];
+                let t: Vec<f64> = r
+                    .pairs
+                    .iter()
+                    .map(|&(_, j)| r.reference.stamps[j] - t0)
+                    .collect();
+                let title = format!("RPE rmse {:.4} m / {:.3} deg", r.trans.rmse, r.rot_deg.rmse);
+                plot::trajectory_figure(
+                    p,
+                    &title,
+                    &[("reference", &rp), ("estimate", &ep)],
+                    Some(("RPE translation (m)", &t, &r.trans_errors)),
+                )?;
+                println!("wrote {}", p.display());
+            }
+        }
+    }
+    Ok(())
+}

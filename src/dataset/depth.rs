@@ -1,0 +1,98 @@
+//! Depth images in metres, read from and written to 16-bit PNG.
+
+use crate::error::{Error, Result};
+use image::{DynamicImage, ImageBuffer, Luma};
+use std::path::Path;
+
+/// A depth image: z-depth in metres, `0.0` where the sensor gave no reading.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthImage {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, `width * height` values.
+    pub data: Vec<f32>,
+}
+
+impl DepthImage {
+    pub fn new(width: u32, height: u32) -> Self {
+        DepthImage {
+            width,
+            height,
+            data: vec![0.0; (width * height) as usize],
+        }
+    }
+
+    /// Depth at integer pixel `(x, y)`; `None` outside the image or without a reading.
+    pub fn get(&self, x: i64, y: i64) -> Option<f32> {
+        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+            return None;
+        }
+        let d = self.data[(y as u64 * self.width as u64 + x as u64) as usize];
+        (d > 0.0).then_some(d)
+    }
+
+    /// Depth at the pixel nearest to a sub-pixel position.
+    pub fn at(&self, x: f64, y: f64) -> Option<f32> {
+        self.get(x.round() as i64, y.round() as i64)
+    }
+
+    /// Fraction of pixels with a reading.
+    pub fn valid_fraction(&self) -> f64 {
+        let n = self.data.iter().filter(|&&d| d > 0.0).count();
+        n as f64 / self.data.len().max(1) as f64
+    }
+
+    /// Decodes a 16-bit single-channel PNG with `metres = value / scale`
+    /// (TUM RGB-D and NYUv2 samples: scale 5000). An 8-bit or colour image is an error.
+    pub fn read_png(path: impl AsRef<Path>, scale: f64) -> Result<Self> {
+        let path = path.as_ref();
+        let img = image::open(path).map_err(|e| match e {
+            image::ImageError::IoError(io) => Error::io(path, io),
+            other => Error::invalid(path, format!("cannot decode depth image: {other}")),
+        })?;
+        match img {
+            DynamicImage::ImageLuma16(buf) => {
+                let (width, height) = buf.dimensions();
+                let inv = 1.0 / scale;
+                let data = buf
+                    .as_raw()
+                    .iter()
+                    .map(|&v| (v as f64 * inv) as f32)
+                    .collect();
+                Ok(DepthImage {
+                    width,
+                    height,
+                    data,
+                })
+            }
+            other => Err(Error::invalid(
+                path,
+                format!(
+                    "depth images must be 16-bit single-channel PNG, found {:?}",
+                    other.color()
+                ),
+            )),
+        }
+    }
+
+    /// Encodes as a 16-bit PNG with `value = round(metres * scale)`, atomically.
+    /// Depths beyond the 16-bit range are written as 0 (no reading).
+    pub fn write_png(&self, path: impl AsRef<Path>, scale: f64) -> Result<()> {
+        let raw: Vec<u16> = self
+            .data
+            .iter()
+            .map(|&d| {
+                let v = (d as f64 * scale).round();
+                if d > 0.0 && v <= u16::MAX as f64 {
+                    v as u16
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let buf: ImageBuffer<Luma<u16>, Vec<u16>> =
+            ImageBuffer::from_raw(self.width, self.height, raw)
+                .ok_or_else(|| Error::msg("depth buffer size does not match its dimensions"))?;
+        crate::imageio::write_png_atomic(path, &DynamicImage::ImageLuma16(buf))
+    }
+}

@@ -1,0 +1,397 @@
+//! TUM RGB-D benchmark sequences in their own layout: `rgb.txt`, `depth.txt`,
+//! `groundtruth.txt`, optional `associations.txt`, `rgb/`, `depth/`.
+//!
+//! Opening a sequence reads only the text files; images are decoded lazily, one
+//! frame at a time, so sequences of thousands of 640x480 frames cost nothing to open.
+
+use super::depth::DepthImage;
+use crate::error::{Error, Result};
+use crate::geometry::Pose;
+use crate::io::{parse_f64, read_text, records};
+use crate::trajectory::Trajectory;
+use image::{GrayImage, RgbImage};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// How a sequence is read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TumConfig {
+    /// Maximum RGB-depth timestamp difference for association, seconds.
+    pub max_assoc_diff: f64,
+    /// Use `associations.txt` when the folder has one.
+    pub use_associations_file: bool,
+    /// Depth PNG value per metre.
+    pub depth_scale: f64,
+    /// Ground truth is `None` where its nearest sample is farther than this, seconds.
+    pub max_gt_gap: f64,
+}
+
+impl Default for TumConfig {
+    fn default() -> Self {
+        TumConfig {
+            max_assoc_diff: 0.02,
+            use_associations_file: true,
+            depth_scale: 5000.0,
+            max_gt_gap: 0.02,
+        }
+    }
+}
+
+/// One entry of a sequence: an RGB image and, when associated, a depth image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameInfo {
+    pub rgb_stamp: f64,
+    pub rgb_path: PathBuf,
+    pub depth_stamp: Option<f64>,
+    pub depth_path: Option<PathBuf>,
+}
+
+/// A loaded frame.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    pub index: usize,
+    /// Timestamp of the RGB image, seconds.
+    pub stamp: f64,
+    pub rgb: RgbImage,
+    pub depth: Option<DepthImage>,
+    /// Ground-truth camera-to-world pose interpolated at `stamp`.
+    pub gt_pose: Option<Pose>,
+}
+
+/// A TUM RGB-D sequence folder.
+#[derive(Debug, Clone)]
+pub struct TumSequence {
+    pub root: PathBuf,
+    pub config: TumConfig,
+    pub frames: Vec<FrameInfo>,
+    pub groundtruth: Option<Trajectory>,
+}
+
+/// A `timestamp filename` list (`rgb.txt`, `depth.txt`).
+fn read_file_list(path: &Path) -> Result<Vec<(f64, String, usize)>> {
+    let text = read_text(path)?;
+    let mut out: Vec<(f64, String, usize)> = Vec::new();
+    for rec in records(&text) {
+        if rec.fields.len() < 2 {
+            return Err(Error::parse(
+                path,
+                rec.line,
+                format!(
+                    "expected 'timestamp filename', found {} field(s)",
+                    rec.fields.len()
+                ),
+            ));
+        }
+        let t = parse_f64(path, rec.line, "timestamp", rec.fields[0])?;
+        if let Some((last, _, _)) = out.last()
+            && t <= *last
+        {
+            return Err(Error::parse(
+                path,
+                rec.line,
+                format!(
+                    "timestamp {} is not after the previous one ({last})",
+                    rec.fields[0]
+                ),
+            ));
+        }
+        out.push((t, rec.fields[1].to_string(), rec.line));
+    }
+    Ok(out)
+}
+
+/// Associates two sorted timestamp lists as the benchmark's `associate.py` does:
+/// every pair closer than `max_diff` is a candidate, candidates are taken in order
+/// of increasing time difference, each stamp used at most once. Returns index
+/// pairs sorted by the first list.
+pub fn associate(a: &[f64], b: &[f64], max_diff: f64) -> Vec<(usize, usize)> {
+    let mut candidates: Vec<(f64, usize, usize)> = Vec::new();
+    let mut lo = 0;
+    for (i, &ta) in a.iter().enumerate() {
+        while lo < b.len() && b[lo] <= ta - max_diff {
+            lo += 1;
+        }
+        let mut j = lo;
+        while j < b.len() && b[j] < ta + max_diff {
+            let d = (ta - b[j]).abs();
+            if d < max_diff {
+                candidates.push((d, i, j));
+            }
+            j += 1;
+        }
+    }
+    candidates.sort_by(|x, y| x.partial_cmp(y).unwrap_or(std::cmp::Ordering::Equal));
+    let (mut used_a, mut used_b) = (vec![false; a.len()], vec![false; b.len()]);
+    let mut pairs = Vec::new();
+    for (_, i, j) in candidates {
+        if !used_a[i] && !used_b[j] {
+            used_a[i] = true;
+            used_b[j] = true;
+            pairs.push((i, j));
+        }
+    }
+    pairs.sort_unstable();
+    pairs
+}
+
+impl TumSequence {
+    /// Opens a sequence folder with the default configuration.
+    pub fn open(root: impl AsRef<Path>) -> Result<Self> {
+        Self::open_with(root, TumConfig::default())
+    }
+
+    /// Opens a sequence folder: reads the text files, associates RGB and depth,
+    /// loads the ground truth. No image is decoded.
+    pub fn open_with(root: impl AsRef<Path>, config: TumConfig) -> Result<Self> {
+        let root = root.as_ref().to_path_buf();
+        if !root.is_dir() {
+            return Err(Error::invalid(&root, "sequence folder does not exist"));
+        }
+        let rgb_txt = root.join("rgb.txt");
+        let assoc_txt = root.join("associations.txt");
+        let depth_txt = root.join("depth.txt");
+        let frames = if config.use_associations_file && assoc_txt.is_file() {
+            Self::read_associations(&root, &assoc_txt)?
+        } else {
+            if !rgb_txt.is_file() {
+                return Err(Error::invalid(
+                    &root,
+                    "no rgb.txt (nor associations.txt): not a TUM RGB-D sequence folder",
+                ));
+            }
+            let rgb = read_file_list(&rgb_txt)?;
+            if depth_txt.is_file() {
+                let depth = read_file_list(&depth_txt)?;
+                let ta: Vec<f64> = rgb.iter().map(|r| r.0).collect();
+                let tb: Vec<f64> = depth.iter().map(|d| d.0).collect();
+                associate(&ta, &tb, config.max_assoc_diff)
+                    .into_iter()
+                    .map(|(i, j)| FrameInfo {
+                        rgb_stamp: rgb[i].0,
+                        rgb_path: root.join(&rgb[i].1),
+                        depth_stamp: Some(depth[j].0),
+                        depth_path: Some(root.join(&depth[j].1)),
+                    })
+                    .collect()
+            } else {
+                rgb.into_iter()
+                    .map(|(t, f, _)| FrameInfo {
+                        rgb_stamp: t,
+                        rgb_path: root.join(f),
+                        depth_stamp: None,
+                        depth_path: None,
+                    })
+                    .collect()
+            }
+        };
+        if frames.is_empty() {
+            return Err(Error::invalid(
+                &root,
+                format!(
+                    "sequence has no frames (no RGB images, or none with a depth image within {} s)",
+                    config.max_assoc_diff
+                ),
+            ));
+        }
+        let gt_path = root.join("groundtruth.txt");
+        let groundtruth = if gt_path.is_file() {
+            Some(Trajectory::read_tum(&gt_path)?)
+        } else {
+            None
+        };
+        Ok(TumSequence {
+            root,
+            config,
+            frames,
+            groundtruth,
+        })
+    }
+
+    fn read_associations(root: &Path, path: &Path) -> Result<Vec<FrameInfo>> {
+        let text = read_text(path)?;
+        let mut frames: Vec<FrameInfo> = Vec::new();
+        for rec in records(&text) {
+            let f = &rec.fields;
+            if f.len() < 4 {
+                return Err(Error::parse(
+                    path,
+                    rec.line,
+                    format!(
+                        "expected 't_rgb rgb/file t_depth depth/file', found {} field(s)",
+                        f.len()
+                    ),
+                ));
+            }
+            let t_rgb = parse_f64(path, rec.line, "RGB timestamp", f[0])?;
+            let t_depth = parse_f64(path, rec.line, "depth timestamp", f[2])?;
+            if let Some(last) = frames.last()
+                && t_rgb <= last.rgb_stamp
+            {
+                return Err(Error::parse(
+                    path,
+                    rec.line,
+                    format!("RGB timestamp {} is not after the previous one", f[0]),
+                ));
+            }
+            frames.push(FrameInfo {
+                rgb_stamp: t_rgb,
+                rgb_path: root.join(f[1]),
+                depth_stamp: Some(t_depth),
+                depth_path: Some(root.join(f[3])),
+            });
+        }
+        Ok(frames)
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Whether frames carry depth images.
+    pub fn has_depth(&self) -> bool {
+        self.frames.iter().any(|f| f.depth_path.is_some())
+    }
+
+    /// The sequence's name (its folder name).
+    pub fn name(&self) -> String {
+        self.root
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| self.root.display().to_string())
+    }
+
+    fn info(&self, index: usize) -> Result<&FrameInfo> {
+        self.frames.get(index).ok_or_else(|| {
+            Error::msg(format!(
+                "frame {index} out of range: {} has {} frames",
+                self.root.display(),
+                self.frames.len()
+            ))
+        })
+    }
+
+    /// Ground-truth pose at a timestamp (see [`Trajectory::pose_at`]).
+    pub fn gt_pose_at(&self, stamp: f64) -> Option<Pose> {
+        self.groundtruth
+            .as_ref()
+            .and_then(|gt| gt.pose_at(stamp, self.config.max_gt_gap))
+    }
+
+    /// Decodes frame `index`'s RGB image.
+    pub fn load_rgb(&self, index: usize) -> Result<RgbImage> {
+        crate::imageio::read_rgb(&self.info(index)?.rgb_path)
+    }
+
+    /// Decodes frame `index`'s RGB image as grayscale.
+    pub fn load_gray(&self, index: usize) -> Result<GrayImage> {
+        crate::imageio::read_gray(&self.info(index)?.rgb_path)
+    }
+
+    /// Decodes frame `index`'s depth image in metres (`None` without depth).
+    pub fn load_depth(&self, index: usize) -> Result<Option<DepthImage>> {
+        match &self.info(index)?.depth_path {
+            Some(p) => DepthImage::read_png(p, self.config.depth_scale).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Loads frame `index`: RGB, depth (checked to have the RGB image's size) and
+    /// interpolated ground truth.
+    pub fn load_frame(&self, index: usize) -> Result<Frame> {
+        let info = self.info(index)?;
+        let rgb = self.load_rgb(index)?;
+        let depth = self.load_depth(index)?;
+        if let (Some(d), Some(p)) = (&depth, &info.depth_path)
+            && (d.width, d.height) != rgb.dimensions()
+        {
+            return Err(Error::invalid(
+                p,
+                format!(
+                    "depth image is {}x{} but its RGB image {} is {}x{}",
+                    d.width,
+                    d.height,
+                    info.rgb_path.display(),
+                    rgb.width(),
+                    rgb.height()
+                ),
+            ));
+        }
+        Ok(Frame {
+            index,
+            stamp: info.rgb_stamp,
+            rgb,
+            depth,
+            gt_pose: self.gt_pose_at(info.rgb_stamp),
+        })
+    }
+
+    /// Iterates over frames, decoding each one only when it is reached.
+    pub fn iter(&self) -> impl Iterator<Item = Result<Frame>> + '_ {
+        (0..self.len()).map(move |i| self.load_frame(i))
+    }
+}
+
+impl Trajectory {
+    /// Pose at time `t`: linear interpolation of the translation and SLERP of the
+    /// rotation between the two samples around `t`. `None` when the nearest
+    /// sample is farther than `max_gap` seconds. Outside the trajectory's time
+    /// span, the end pose is returned if it is within `max_gap` (no extrapolation).
+    pub fn pose_at(&self, t: f64, max_gap: f64) -> Option<Pose> {
+        if self.is_empty() || !t.is_finite() {
+            return None;
+        }
+        let k = self.stamps.partition_point(|&s| s <= t);
+        if k == 0 {
+            return (self.stamps[0] - t <= max_gap).then(|| self.poses[0]);
+        }
+        if k == self.len() {
+            let last = self.len() - 1;
+            return (t - self.stamps[last] <= max_gap).then(|| self.poses[last]);
+        }
+        let (t0, t1) = (self.stamps[k - 1], self.stamps[k]);
+        if (t - t0).min(t1 - t) > max_gap {
+            return None;
+        }
+        let s = (t - t0) / (t1 - t0);
+        Some(crate::geometry::interpolate(
+            &self.poses[k - 1],
+            &self.poses[k],
+            s,
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn association_is_greedy_and_unique() {
+        let a = [1.00, 1.03, 1.06, 2.0];
+        let b = [1.005, 1.012, 1.061, 3.0];
+        let pairs = associate(&a, &b, 0.02);
+        // 1.00-1.005 (5 ms) wins over 1.00-1.012; 1.03 has nothing within 20 ms
+        // except 1.012 (18 ms), 1.06-1.061.
+        assert_eq!(pairs, vec![(0, 0), (1, 1), (2, 2)]);
+        assert_eq!(associate(&a, &b, 0.002), vec![(2, 2)]);
+    }
+
+    #[test]
+    fn pose_at_interpolates_and_respects_gaps() {
+        use crate::geometry::pose_from_tum;
+        let p = |x: f64| pose_from_tum([x, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]).unwrap();
+        let t = Trajectory::from_parts(vec![0.0, 0.01, 1.0], vec![p(0.0), p(1.0), p(2.0)]).unwrap();
+        assert!((t.pose_at(0.005, 0.02).unwrap().translation.x - 0.5).abs() < 1e-12);
+        assert!(t.pose_at(0.5, 0.02).is_none());
+        assert!((t.pose_at(0.995, 0.02).unwrap().translation.x - 1.0 - 0.985 / 0.99).abs() < 1e-12);
+        assert!(t.pose_at(-0.01, 0.02).is_some());
+        assert!(t.pose_at(-0.05, 0.02).is_none());
+        assert!(t.pose_at(1.03, 0.02).is_none());
+    }
+}

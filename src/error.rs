@@ -1,0 +1,60 @@
+//! One error type for the whole crate: every message names the file (and line or
+//! frame) it is about, so a user can fix their input without reading our code.
+
+use std::path::{Path, PathBuf};
+
+/// Errors raised by sdf-slam. Bad input is always an `Err`, never a panic.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A file could not be opened, read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A text file has a malformed line (1-based line number).
+    #[error("{}:{line}: {msg}", path.display())]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        msg: String,
+    },
+    /// A file is readable but its content is unusable (wrong image format, size...).
+    #[error("{}: {msg}", path.display())]
+    Invalid { path: PathBuf, msg: String },
+    /// Anything else: inconsistent arguments, degenerate data.
+    #[error("{0}")]
+    Msg(String),
+}
+
+/// Crate-wide result.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
+    }
+
+    pub fn parse(path: impl AsRef<Path>, line: usize, msg: impl Into<String>) -> Self {
+        Error::Parse {
+            path: path.as_ref().to_path_buf(),
+            line,
+            msg: msg.into(),
+        }
+    }
+
+    pub fn invalid(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        Error::Invalid {
+            path: path.as_ref().to_path_buf(),
+            msg: msg.into(),
+        }
+    }
+
+    pub fn msg(msg: impl Into<String>) -> Self {
+        Error::Msg(msg.into())
+    }
+}

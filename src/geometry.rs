@@ -1,0 +1,115 @@
+//! SE(3) / Sim(3) helpers on top of nalgebra. Poses are camera-to-world
+//! (`x_world = T * x_cam`), the TUM RGB-D convention.
+
+use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+
+/// A rigid camera pose, camera-to-world.
+pub type Pose = Isometry3<f64>;
+
+/// Builds a pose from TUM fields (`tx ty tz`, `qx qy qz qw`). The quaternion is
+/// normalised; `None` when any value is not finite or the quaternion is zero.
+pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
+    if t.iter().chain(q_xyzw.iter()).any(|v| !v.is_finite()) {
+        return None;
+    }
+    let q = Quaternion::new(q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]);
+    let norm = q.norm();
+    if norm < 1e-12 {
+        return None;
+    }
+    Some(Isometry3::from_parts(
+        Translation3::new(t[0], t[1], t[2]),
+        UnitQuaternion::new_unchecked(q / norm),
+    ))
+}
+
+/// TUM fields of a pose: (`[tx, ty, tz]`, `[qx, qy, qz, qw]`).
+pub fn pose_to_tum(pose: &Pose) -> ([f64; 3], [f64; 4]) {
+    let t = pose.translation.vector;
+    let q = pose.rotation.quaternion();
+    ([t.x, t.y, t.z], [q.i, q.j, q.k, q.w])
+}
+
+/// Interpolates between two poses at `s` in [0, 1]: translation linearly,
+/// rotation by SLERP along the shorter arc (a quaternion sign flip between the
+/// two samples, common in motion-capture files, is handled).
+pub fn interpolate(a: &Pose, b: &Pose, s: f64) -> Pose {
+    let t = a.translation.vector.lerp(&b.translation.vector, s);
+    let qa = a.rotation;
+    let mut qb = b.rotation;
+    if qa.coords.dot(&qb.coords) < 0.0 {
+        qb = UnitQuaternion::new_unchecked(-qb.into_inner());
+    }
+    // Nearly equal rotations: normalised lerp is exact to machine precision.
+    let r = qa.try_slerp(&qb, s, 1e-12).unwrap_or_else(|| {
+        UnitQuaternion::new_normalize(qa.into_inner().lerp(&qb.into_inner(), s))
+    });
+    Isometry3::from_parts(Translation3::from(t), r)
+}
+
+/// Rotation angle of a rotation in radians, in [0, pi] (atan2 form, accurate
+/// for small angles).
+pub fn rotation_angle(r: &UnitQuaternion<f64>) -> f64 {
+    r.angle()
+}
+
+/// A similarity transform `x -> s R x + t` (Umeyama alignment result).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sim3 {
+    pub rotation: Matrix3<f64>,
+    pub translation: Vector3<f64>,
+    pub scale: f64,
+}
+
+impl Sim3 {
+    pub fn identity() -> Self {
+        Sim3 {
+            rotation: Matrix3::identity(),
+            translation: Vector3::zeros(),
+            scale: 1.0,
+        }
+    }
+
+    /// Applies the transform to a point.
+    pub fn transform_point(&self, p: &Point3<f64>) -> Point3<f64> {
+        Point3::from(self.scale * (self.rotation * p.coords) + self.translation)
+    }
+
+    /// Applies the transform to a camera pose as evo does: positions are scaled
+    /// first, then the rigid part is left-multiplied.
+    pub fn transform_pose(&self, pose: &Pose) -> Pose {
+        let r = UnitQuaternion::from_matrix(&self.rotation);
+        let t = self.scale * (self.rotation * pose.translation.vector) + self.translation;
+        Isometry3::from_parts(Translation3::from(t), r * pose.rotation)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tum_round_trip() {
+        let p = pose_from_tum([1.0, 2.0, 3.0], [0.1, -0.2, 0.3, 0.9]).unwrap();
+        let (t, q) = pose_to_tum(&p);
+        assert_eq!(t, [1.0, 2.0, 3.0]);
+        let n = (0.01f64 + 0.04 + 0.09 + 0.81).sqrt();
+        assert!((q[0] - 0.1 / n).abs() < 1e-12 && (q[3] - 0.9 / n).abs() < 1e-12);
+        assert!(pose_from_tum([0.0; 3], [0.0; 4]).is_none());
+        assert!(pose_from_tum([f64::NAN, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]).is_none());
+    }
+
+    #[test]
+    fn interpolation_handles_sign_flip() {
+        let a = pose_from_tum([0.0; 3], [0.0, 0.0, 0.0, 1.0]).unwrap();
+        let half = (std::f64::consts::FRAC_PI_4).sin();
+        let (c, s) = ((std::f64::consts::FRAC_PI_4).cos(), half);
+        // 90 degrees about z, written with the opposite sign.
+        let b = pose_from_tum([2.0, 0.0, 0.0], [0.0, 0.0, -s, -c]).unwrap();
+        let m = interpolate(&a, &b, 0.5);
+        assert!((m.translation.vector.x - 1.0).abs() < 1e-12);
+        assert!((rotation_angle(&m.rotation) - std::f64::consts::FRAC_PI_4).abs() < 1e-12);
+        let end = interpolate(&a, &b, 1.0);
+        assert!(rotation_angle(&(end.rotation.inverse() * b.rotation)) < 1e-12);
+    }
+}

@@ -1,0 +1,315 @@
+//! Plots as PNG (plotters with a bundled DejaVu Sans font, so they render the
+//! same on any machine): trajectories seen from above, like the paper's Fig. 9,
+//! and line charts (errors over time, loss curves).
+
+use crate::error::{Error, Result};
+use nalgebra::Point3;
+use plotters::prelude::*;
+use std::path::Path;
+use std::sync::Once;
+
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+
+fn register_fonts() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        for name in ["sans-serif", "serif", "monospace"] {
+            // The bundled font is valid, so registration cannot fail.
+            let _ = plotters::style::register_font(name, FontStyle::Normal, FONT);
+            let _ = plotters::style::register_font(name, FontStyle::Bold, FONT);
+        }
+    });
+}
+
+/// Colours of successive series (reference first).
+pub const PALETTE: [RGBColor; 6] = [
+    RGBColor(40, 40, 40),
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+];
+
+/// A named polyline.
+pub struct Series<'a> {
+    pub name: &'a str,
+    pub points: Vec<(f64, f64)>,
+}
+
+fn plot_err(e: impl std::fmt::Display) -> Error {
+    Error::msg(format!("plotting failed: {e}"))
+}
+
+/// Renders into an RGB buffer, then writes the PNG atomically.
+fn render(
+    path: &Path,
+    (w, h): (u32, u32),
+    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> Result<()>,
+) -> Result<()> {
+    register_fonts();
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        draw(root.clone())?;
+        root.present().map_err(plot_err)?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| Error::msg("plot buffer size"))?;
+    crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageRgb8(img))
+}
+
+fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-3);
+    (lo - pad, hi + pad)
+}
+
+/// A line chart of several series.
+pub fn line_chart(
+    path: impl AsRef<Path>,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+    log_y: bool,
+) -> Result<()> {
+    render(path.as_ref(), (1000, 640), |root| {
+        draw_lines(&root, title, x_label, y_label, series, log_y)
+    })
+}
+
+fn draw_lines<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+    log_y: bool,
+) -> Result<()> {
+    let (x0, x1) = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
+    let ys = || series.iter().flat_map(|s| s.points.iter().map(|p| p.1));
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .caption(title, ("sans-serif", 24))
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(70);
+    macro_rules! finish {
+        ($chart:expr) => {{
+            let mut chart = $chart;
+            chart
+                .configure_mesh()
+                .x_desc(x_label)
+                .y_desc(y_label)
+                .label_style(("sans-serif", 15))
+                .light_line_style(RGBColor(235, 235, 235))
+                .draw()
+                .map_err(plot_err)?;
+            for (k, s) in series.iter().enumerate() {
+                let c = PALETTE[(k + 1) % PALETTE.len()];
+                chart
+                    .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
+                    .map_err(plot_err)?
+                    .label(s.name)
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
+                    });
+            }
+            if series.len() > 1 {
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 15))
+                    .draw()
+                    .map_err(plot_err)?;
+            }
+        }};
+    }
+    if log_y {
+        let (lo, hi) = ys()
+            .filter(|v| *v > 0.0)
+            .fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+        let (lo, hi) = if lo.is_finite() {
+            (lo * 0.8, hi * 1.25)
+        } else {
+            (1e-3, 1.0)
+        };
+        finish!(
+            builder
+                .build_cartesian_2d(x0..x1, (lo..hi).log_scale())
+                .map_err(plot_err)?
+        );
+    } else {
+        let (y0, y1) = padded_range(ys());
+        finish!(
+            builder
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(plot_err)?
+        );
+    }
+    Ok(())
+}
+
+/// The two world axes along which a set of trajectories spreads most (a
+/// "top view" whatever the world frame's up axis is).
+pub fn dominant_plane(trajectories: &[&[Point3<f64>]]) -> (usize, usize) {
+    let mut var = [0.0f64; 3];
+    for pts in trajectories {
+        if pts.is_empty() {
+            continue;
+        }
+        let n = pts.len() as f64;
+        for (a, v) in var.iter_mut().enumerate() {
+            let mean = pts.iter().map(|p| p[a]).sum::<f64>() / n;
+            *v += pts.iter().map(|p| (p[a] - mean).powi(2)).sum::<f64>() / n;
+        }
+    }
+    let drop = (0..3)
+        .min_by(|&a, &b| var[a].total_cmp(&var[b]))
+        .unwrap_or(2);
+    let mut keep = (0..3).filter(|&a| a != drop);
+    (keep.next().unwrap_or(0), keep.next().unwrap_or(1))
+}
+
+/// Figure of trajectories seen from above (left, equal axes; start marked) and,
+/// when `errors` is given, the per-pose error over time (right).
+pub fn trajectory_figure(
+    path: impl AsRef<Path>,
+    title: &str,
+    trajectories: &[(&str, &[Point3<f64>])],
+    errors: Option<(&str, &[f64], &[f64])>,
+) -> Result<()> {
+    let width = if errors.is_some() { 1500 } else { 900 };
+    render(path.as_ref(), (width, 800), |root| {
+        let root = root.titled(title, ("sans-serif", 26)).map_err(plot_err)?;
+        let (left, right) = if errors.is_some() {
+            let (l, r) = root.split_horizontally(800);
+            (l, Some(r))
+        } else {
+            (root, None)
+        };
+        let pts: Vec<&[Point3<f64>]> = trajectories.iter().map(|t| t.1).collect();
+        let (a, b) = dominant_plane(&pts);
+        let (mut x0, mut x1) = padded_range(pts.iter().flat_map(|p| p.iter().map(|q| q[a])));
+        let (mut y0, mut y1) = padded_range(pts.iter().flat_map(|p| p.iter().map(|q| q[b])));
+        // Equal metric scale on both axes.
+        let half = 0.5 * (x1 - x0).max(y1 - y0);
+        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        (x0, x1, y0, y1) = (cx - half, cx + half, cy - half, cy + half);
+        let axis = ["x", "y", "z"];
+        let mut chart = ChartBuilder::on(&left)
+            .margin(16)
+            .x_label_area_size(44)
+            .y_label_area_size(64)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_desc(format!("{} (m)", axis[a]))
+            .y_desc(format!("{} (m)", axis[b]))
+            .label_style(("sans-serif", 15))
+            .light_line_style(RGBColor(235, 235, 235))
+            .draw()
+            .map_err(plot_err)?;
+        for (k, (name, p)) in trajectories.iter().enumerate() {
+            let c = PALETTE[k % PALETTE.len()];
+            let style = if k == 0 {
+                c.stroke_width(3)
+            } else {
+                c.stroke_width(2)
+            };
+            chart
+                .draw_series(LineSeries::new(p.iter().map(|q| (q[a], q[b])), style))
+                .map_err(plot_err)?
+                .label(*name)
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
+                });
+            if let Some(s) = p.first() {
+                chart
+                    .draw_series(std::iter::once(Circle::new((s[a], s[b]), 6, c.filled())))
+                    .map_err(plot_err)?;
+            }
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 16))
+            .draw()
+            .map_err(plot_err)?;
+        if let (Some(right), Some((label, t, e))) = (right, errors) {
+            let series = [Series {
+                name: label,
+                points: t.iter().copied().zip(e.iter().copied()).collect(),
+            }];
+            draw_lines(
+                &right,
+                &format!("{label} over time"),
+                "time (s)",
+                label,
+                &series,
+                false,
+            )?;
+        }
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dominant_plane_drops_flat_axis() {
+        let pts: Vec<Point3<f64>> = (0..10)
+            .map(|i| Point3::new(i as f64, 1.0, 0.5 * i as f64))
+            .collect();
+        assert_eq!(dominant_plane(&[&pts]), (0, 2));
+    }
+
+    #[test]
+    fn figures_are_written() {
+        let dir = std::env::temp_dir().join(format!("sdf_plot_{}", std::process::id()));
+        let pts: Vec<Point3<f64>> = (0..50)
+            .map(|i| Point3::new((i as f64 * 0.1).cos(), (i as f64 * 0.1).sin(), 0.0))
+            .collect();
+        let t: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        let e: Vec<f64> = (0..50).map(|i| i as f64 * 0.01).collect();
+        let p = dir.join("traj.png");
+        trajectory_figure(
+            &p,
+            "test",
+            &[("gt", &pts), ("est", &pts)],
+            Some(("ATE (m)", &t, &e)),
+        )
+        .unwrap();
+        let img = image::open(&p).unwrap();
+        assert_eq!(img.width(), 1500);
+        let p2 = dir.join("lines.png");
+        line_chart(
+            &p2,
+            "loss",
+            "epoch",
+            "loss",
+            &[Series {
+                name: "a",
+                points: vec![(0.0, 1.0), (1.0, 0.5)],
+            }],
+            true,
+        )
+        .unwrap();
+        assert!(p2.exists());
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

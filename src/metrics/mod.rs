@@ -1,10 +1,15 @@
 //! Evaluation metrics: trajectory errors as evo computes them (ATE/RPE), the
-//! paper's errT/errR (eqs 11-14), and summary statistics.
+//! paper's errT/errR (eqs 11-14), segmentation (eqs 16-17) and depth (eqs 18-20)
+//! accuracy, and summary statistics.
 
+pub mod depth;
 pub mod pose_error;
+pub mod segmentation;
 pub mod stats;
 pub mod trajectory;
 
+pub use depth::{DepthAccumulator, DepthMetrics};
 pub use pose_error::{PoseError, PoseErrorSegment};
+pub use segmentation::{ClassScore, ConfusionMatrix};
 pub use stats::Stats;
 pub use trajectory::{Alignment, Ape, DeltaUnit, Rpe, ape, associate, rpe, umeyama};

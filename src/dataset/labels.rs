@@ -1,0 +1,96 @@
+//! 8-bit label images (class indices), read without any colour conversion so
+//! that greyscale and palette PNGs both give their stored indices.
+
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// A row-major label image: NYUv2 40-class indices 0-39, 255 = void.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabelImage {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<u8>,
+}
+
+/// The void / unlabelled value.
+pub const VOID: u8 = 255;
+
+impl LabelImage {
+    pub fn new(width: u32, height: u32, fill: u8) -> Self {
+        LabelImage {
+            width,
+            height,
+            data: vec![fill; (width * height) as usize],
+        }
+    }
+
+    #[inline]
+    pub fn get(&self, x: u32, y: u32) -> u8 {
+        self.data[(y * self.width + x) as usize]
+    }
+
+    /// Reads the raw indices of an 8-bit greyscale or palette PNG.
+    pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let decoder = png::Decoder::new(std::io::BufReader::new(file));
+        let bad =
+            |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
+        let mut reader = decoder.read_info().map_err(bad)?;
+        let size = reader
+            .output_buffer_size()
+            .ok_or_else(|| Error::invalid(path, "label image too large"))?;
+        let mut buf = vec![0u8; size];
+        let info = reader.next_frame(&mut buf).map_err(bad)?;
+        use png::{BitDepth, ColorType};
+        match (info.color_type, info.bit_depth) {
+            (ColorType::Grayscale | ColorType::Indexed, BitDepth::Eight) => {}
+            (c, b) => {
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "label images must be 8-bit greyscale or palette PNG, found {c:?} {b:?}"
+                    ),
+                ));
+            }
+        }
+        let (w, h) = (info.width, info.height);
+        let mut data = Vec::with_capacity((w * h) as usize);
+        for row in buf.chunks(info.line_size).take(h as usize) {
+            data.extend_from_slice(&row[..w as usize]);
+        }
+        Ok(LabelImage {
+            width: w,
+            height: h,
+            data,
+        })
+    }
+
+    /// Checks that every value is a class below `num_classes` or [`VOID`].
+    pub fn validate(&self, num_classes: usize, path: &Path) -> Result<()> {
+        match self
+            .data
+            .iter()
+            .position(|&v| v != VOID && v as usize >= num_classes)
+        {
+            None => Ok(()),
+            Some(i) => Err(Error::invalid(
+                path,
+                format!(
+                    "label {} at pixel ({}, {}) is not a class 0-{} nor 255 (void)",
+                    self.data[i],
+                    i as u32 % self.width,
+                    i as u32 / self.width,
+                    num_classes - 1
+                ),
+            )),
+        }
+    }
+
+    /// Writes an 8-bit greyscale PNG, atomically.
+    pub fn write_png(&self, path: impl AsRef<Path>) -> Result<()> {
+        let img = image::GrayImage::from_raw(self.width, self.height, self.data.clone())
+            .ok_or_else(|| Error::msg("label buffer size does not match its dimensions"))?;
+        crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageLuma8(img))
+    }
+}

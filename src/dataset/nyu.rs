@@ -1,0 +1,294 @@
+//! NYU Depth v2 labelled images in the PNG layouts people convert the official
+//! `nyu_depth_v2_labeled.mat` to, with a split list.
+//!
+//! Two layouts are recognised:
+//! * **folders**: `rgb/<id>.png`, `depth/<id>.png` (optional), `labels/<id>.png`
+//!   (what `synth` writes, and common converters);
+//! * **flat**: `<id>_rgb.png`, `<id>_depth.png` (optional), and `<id>_seg40.png`
+//!   (40 classes) or `<id>_seg894.png` (894 classes, mapped to 40), or
+//!   `<id>.png` + `<id>_mask.png` (40 classes, no depth).
+//!
+//! Depth is 16-bit with `metres = value / depth_scale` (5000 by default), 0 =
+//! missing. Labels are 0-based 40-class indices (0 = wall ... 39 = otherprop)
+//! with 255 = void; 894-class labels use 0 = unlabelled and are mapped with
+//! `datasets/meta/nyuv2/nyu894_to_nyu40.csv`. A split list names one sample per
+//! line, by id (`000433`) or by 1-based index (`433`, as the standard
+//! `splits_{train,test}_1based.txt`).
+
+use super::depth::DepthImage;
+use super::labels::{LabelImage, VOID};
+use crate::error::{Error, Result};
+use crate::io::{read_text, records};
+use image::RgbImage;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Number of NYUv2 semantic classes used by the paper.
+pub const NUM_CLASSES: usize = 40;
+
+/// Where one sample's files are.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NyuSample {
+    pub id: String,
+    pub rgb: PathBuf,
+    pub depth: Option<PathBuf>,
+    pub labels: PathBuf,
+    /// Labels are 894-class and need mapping to 40.
+    pub labels_894: bool,
+}
+
+/// A loaded sample.
+#[derive(Debug, Clone)]
+pub struct NyuItem {
+    pub id: String,
+    pub rgb: RgbImage,
+    pub depth: Option<DepthImage>,
+    pub labels: LabelImage,
+}
+
+/// A NYUv2-style dataset folder.
+#[derive(Debug, Clone)]
+pub struct NyuDataset {
+    pub root: PathBuf,
+    pub samples: Vec<NyuSample>,
+    pub depth_scale: f64,
+    map894: Option<Vec<u8>>,
+}
+
+fn png_stems(dir: &Path) -> Result<Vec<String>> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+        let p = e.map_err(|e| Error::io(dir, e))?.path();
+        if p.extension().is_some_and(|x| x.eq_ignore_ascii_case("png"))
+            && let Some(s) = p.file_stem()
+        {
+            out.push(s.to_string_lossy().into_owned());
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Reads the 894 -> 40 class map (`id894,name894,id40,name40`, 1-based ids) as a
+/// lookup from 894-class value (0 = unlabelled) to 0-based 40-class index or void.
+pub fn read_894_to_40(path: impl AsRef<Path>) -> Result<Vec<u8>> {
+    let path = path.as_ref();
+    let text = read_text(path)?;
+    let mut map = vec![VOID; 256 * 4];
+    let mut max_id = 0usize;
+    for rec in records(&text).filter(|r| r.line > 1) {
+        let f = &rec.fields;
+        let parse = |s: &str| s.parse::<usize>().ok();
+        let (Some(a), Some(b)) = (
+            parse(f[0]),
+            f.get(f.len().saturating_sub(2)).and_then(|s| parse(s)),
+        ) else {
+            return Err(Error::parse(
+                path,
+                rec.line,
+                "expected 'id894,name894,id40,name40'",
+            ));
+        };
+        if a == 0 || a >= map.len() || b == 0 || b > NUM_CLASSES {
+            return Err(Error::parse(
+                path,
+                rec.line,
+                format!("ids out of range: {a} -> {b}"),
+            ));
+        }
+        map[a] = (b - 1) as u8;
+        max_id = max_id.max(a);
+    }
+    map.truncate(max_id + 1);
+    Ok(map)
+}
+
+impl NyuDataset {
+    /// Opens a dataset folder, optionally restricted to the samples of a split list.
+    pub fn open(root: impl AsRef<Path>, split: Option<&Path>) -> Result<Self> {
+        let root = root.as_ref().to_path_buf();
+        if !root.is_dir() {
+            return Err(Error::invalid(&root, "dataset folder does not exist"));
+        }
+        let mut samples = if root.join("rgb").is_dir() && root.join("labels").is_dir() {
+            Self::folder_layout(&root)?
+        } else {
+            Self::flat_layout(&root)?
+        };
+        if samples.is_empty() {
+            return Err(Error::invalid(
+                &root,
+                "no samples found: expected rgb/ + labels/ folders, or <id>_rgb.png + <id>_seg40.png files",
+            ));
+        }
+        if let Some(split) = split {
+            samples = Self::apply_split(samples, split)?;
+        }
+        let map894 = if samples.iter().any(|s| s.labels_894) {
+            let candidates = [
+                root.join("nyu894_to_nyu40.csv"),
+                PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                    .join("datasets/meta/nyuv2/nyu894_to_nyu40.csv"),
+            ];
+            let p = candidates.iter().find(|p| p.is_file()).ok_or_else(|| {
+                Error::invalid(
+                    &root,
+                    "894-class labels found but no nyu894_to_nyu40.csv to map them",
+                )
+            })?;
+            Some(read_894_to_40(p)?)
+        } else {
+            None
+        };
+        Ok(NyuDataset {
+            root,
+            samples,
+            depth_scale: 5000.0,
+            map894,
+        })
+    }
+
+    fn folder_layout(root: &Path) -> Result<Vec<NyuSample>> {
+        let mut out = Vec::new();
+        for id in png_stems(&root.join("rgb"))? {
+            let labels = root.join("labels").join(format!("{id}.png"));
+            if !labels.is_file() {
+                continue;
+            }
+            let depth = root.join("depth").join(format!("{id}.png"));
+            out.push(NyuSample {
+                rgb: root.join("rgb").join(format!("{id}.png")),
+                depth: depth.is_file().then_some(depth),
+                labels,
+                labels_894: false,
+                id,
+            });
+        }
+        Ok(out)
+    }
+
+    fn flat_layout(root: &Path) -> Result<Vec<NyuSample>> {
+        let stems = png_stems(root)?;
+        let has = |s: &str| stems.binary_search_by(|x| x.as_str().cmp(s)).is_ok();
+        let mut out = Vec::new();
+        for stem in &stems {
+            let (id, rgb) = if let Some(id) = stem.strip_suffix("_rgb") {
+                (id.to_string(), root.join(format!("{stem}.png")))
+            } else if !stem.contains('_') && has(&format!("{stem}_mask")) {
+                (stem.clone(), root.join(format!("{stem}.png")))
+            } else {
+                continue;
+            };
+            let (labels, labels_894) = if has(&format!("{id}_seg40")) {
+                (format!("{id}_seg40"), false)
+            } else if has(&format!("{id}_mask")) {
+                (format!("{id}_mask"), false)
+            } else if has(&format!("{id}_seg894")) {
+                (format!("{id}_seg894"), true)
+            } else {
+                continue;
+            };
+            let depth = has(&format!("{id}_depth")).then(|| root.join(format!("{id}_depth.png")));
+            out.push(NyuSample {
+                id,
+                rgb,
+                depth,
+                labels: root.join(format!("{labels}.png")),
+                labels_894,
+            });
+        }
+        Ok(out)
+    }
+
+    fn apply_split(samples: Vec<NyuSample>, split: &Path) -> Result<Vec<NyuSample>> {
+        let text = read_text(split)?;
+        let key = |s: &str| {
+            s.parse::<u64>()
+                .map(|n| n.to_string())
+                .unwrap_or_else(|_| s.to_string())
+        };
+        let by_key: HashMap<String, &NyuSample> = samples.iter().map(|s| (key(&s.id), s)).collect();
+        let mut out = Vec::new();
+        let mut missing = 0;
+        for rec in records(&text) {
+            match by_key.get(&key(rec.fields[0])) {
+                Some(s) => out.push((*s).clone()),
+                None => missing += 1,
+            }
+        }
+        if out.is_empty() {
+            return Err(Error::invalid(
+                split,
+                format!(
+                    "split list selects no sample of the dataset ({missing} listed ids not found)"
+                ),
+            ));
+        }
+        Ok(out)
+    }
+
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// Loads sample `index`, checking sizes and label values.
+    pub fn load(&self, index: usize) -> Result<NyuItem> {
+        let s = self.samples.get(index).ok_or_else(|| {
+            Error::msg(format!(
+                "sample {index} out of range ({} samples)",
+                self.samples.len()
+            ))
+        })?;
+        let rgb = crate::imageio::read_rgb(&s.rgb)?;
+        let mut labels = LabelImage::read_png(&s.labels)?;
+        if (labels.width, labels.height) != rgb.dimensions() {
+            return Err(Error::invalid(
+                &s.labels,
+                format!(
+                    "label image is {}x{} but its RGB image is {}x{}",
+                    labels.width,
+                    labels.height,
+                    rgb.width(),
+                    rgb.height()
+                ),
+            ));
+        }
+        if s.labels_894 {
+            let map = self.map894.as_deref().unwrap_or(&[]);
+            for v in labels.data.iter_mut() {
+                *v = map.get(*v as usize).copied().unwrap_or(VOID);
+            }
+        } else {
+            labels.validate(NUM_CLASSES, &s.labels)?;
+        }
+        let depth = match &s.depth {
+            Some(p) => {
+                let d = DepthImage::read_png(p, self.depth_scale)?;
+                if (d.width, d.height) != rgb.dimensions() {
+                    return Err(Error::invalid(
+                        p,
+                        format!(
+                            "depth image is {}x{} but its RGB image is {}x{}",
+                            d.width,
+                            d.height,
+                            rgb.width(),
+                            rgb.height()
+                        ),
+                    ));
+                }
+                Some(d)
+            }
+            None => None,
+        };
+        Ok(NyuItem {
+            id: s.id.clone(),
+            rgb,
+            depth,
+            labels,
+        })
+    }
+}

@@ -18,6 +18,7 @@ pub mod io;
 pub mod metrics;
 pub mod plot;
 pub mod raster;
+pub mod training;
 pub mod trajectory;
 
 pub use error::{Error, Result};

@@ -120,3 +120,13 @@ fn metrics_on_real_labels() {
     let r = acc.finish().unwrap();
     assert!((r.rel - 0.1).abs() < 1e-5 && r.delta1 == 1.0);
 }
+
+#[test]
+fn the_894_to_40_table_maps_known_classes() {
+    let map = sdf_slam::dataset::nyu::default_894_to_40();
+    assert_eq!(map.len(), 895);
+    assert_eq!(map[0], 255); // unlabelled -> void
+    assert_eq!(map[1], 39); // book -> otherprop
+    assert_eq!(map[3], 2); // cabinet -> cabinet
+    assert_eq!(map[4], 21); // ceiling -> ceiling
+}

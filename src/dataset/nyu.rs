@@ -46,7 +46,8 @@ pub struct NyuItem {
     pub labels: LabelImage,
 }
 
-/// A NYUv2-style dataset folder.
+/// A NYUv2-style dataset folder (894-class labels are mapped with the folder's
+/// own `nyu894_to_nyu40.csv` if it has one, else the standard table).
 #[derive(Debug, Clone)]
 pub struct NyuDataset {
     pub root: PathBuf,
@@ -73,26 +74,39 @@ fn png_stems(dir: &Path) -> Result<Vec<String>> {
 /// lookup from 894-class value (0 = unlabelled) to 0-based 40-class index or void.
 pub fn read_894_to_40(path: impl AsRef<Path>) -> Result<Vec<u8>> {
     let path = path.as_ref();
-    let text = read_text(path)?;
-    let mut map = vec![VOID; 256 * 4];
+    parse_894_to_40(&read_text(path)?, path)
+}
+
+/// The standard NYUv2 894 -> 40 mapping shipped in `datasets/meta/nyuv2`.
+pub fn default_894_to_40() -> Vec<u8> {
+    const CSV: &str = include_str!("../../datasets/meta/nyuv2/nyu894_to_nyu40.csv");
+    // The shipped table is checked by a test, so it parses.
+    parse_894_to_40(CSV, Path::new("nyu894_to_nyu40.csv")).unwrap_or_default()
+}
+
+fn parse_894_to_40(text: &str, path: &Path) -> Result<Vec<u8>> {
+    let mut map = vec![VOID; 1024];
     let mut max_id = 0usize;
-    for rec in records(&text).filter(|r| r.line > 1) {
-        let f = &rec.fields;
+    for (i, line) in text.lines().enumerate().skip(1) {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
         let parse = |s: &str| s.parse::<usize>().ok();
         let (Some(a), Some(b)) = (
-            parse(f[0]),
-            f.get(f.len().saturating_sub(2)).and_then(|s| parse(s)),
+            f.first().and_then(|s| parse(s)),
+            f.get(2).and_then(|s| parse(s)),
         ) else {
             return Err(Error::parse(
                 path,
-                rec.line,
+                i + 1,
                 "expected 'id894,name894,id40,name40'",
             ));
         };
         if a == 0 || a >= map.len() || b == 0 || b > NUM_CLASSES {
             return Err(Error::parse(
                 path,
-                rec.line,
+                i + 1,
                 format!("ids out of range: {a} -> {b}"),
             ));
         }

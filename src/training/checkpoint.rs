@@ -1,0 +1,254 @@
+//! Run folders and checkpoints.
+//!
+//! ```text
+//! RUN/config.toml              the full training config (written at start)
+//! RUN/metrics.csv, *.png       per-epoch metrics and curves
+//! RUN/checkpoints/epoch-0007/  model.bpk, optimizer.bpk, state.json, config.toml
+//! RUN/checkpoints/last.json    which checkpoint is the newest
+//! ```
+//!
+//! A checkpoint is written into a hidden temporary folder and renamed into place
+//! when complete, and `last.json` is replaced atomically afterwards, so an
+//! interrupted run never leaves a half-written checkpoint behind: `--resume`
+//! always finds the last complete one.
+
+use super::history::History;
+use crate::error::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What is saved beside the weights.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrainState {
+    /// Completed epochs.
+    pub epoch: usize,
+    /// Optimizer steps so far.
+    pub step: u64,
+    pub history: History,
+}
+
+/// A complete checkpoint on disk.
+#[derive(Debug, Clone)]
+pub struct Checkpoint {
+    pub dir: PathBuf,
+    pub state: TrainState,
+}
+
+impl Checkpoint {
+    pub fn model_path(&self) -> PathBuf {
+        self.dir.join("model.bpk")
+    }
+    pub fn optimizer_path(&self) -> PathBuf {
+        self.dir.join("optimizer.bpk")
+    }
+}
+
+/// A training run's folder.
+#[derive(Debug, Clone)]
+pub struct RunDir {
+    pub root: PathBuf,
+    /// How many epoch checkpoints to keep (the newest ones); 0 keeps all.
+    pub keep: usize,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Last {
+    checkpoint: String,
+    epoch: usize,
+}
+
+impl RunDir {
+    /// Opens `root` for a new run (it must not hold checkpoints unless `resume`)
+    /// and writes the config there. When resuming, the saved config must equal
+    /// the given one except for the number of epochs.
+    pub fn prepare(root: impl AsRef<Path>, config_toml: &str, resume: bool) -> Result<Self> {
+        let run = RunDir {
+            root: root.as_ref().to_path_buf(),
+            keep: 3,
+        };
+        let existing = run.latest()?;
+        match (&existing, resume) {
+            (Some(c), false) => {
+                return Err(Error::invalid(
+                    &run.root,
+                    format!(
+                        "run folder already has checkpoints (epoch {}): pass --resume to continue it, or choose another output folder",
+                        c.state.epoch
+                    ),
+                ));
+            }
+            (None, true) => {
+                return Err(Error::invalid(
+                    &run.root,
+                    "--resume: no checkpoint to resume from in this folder",
+                ));
+            }
+            _ => {}
+        }
+        let cfg_path = run.root.join("config.toml");
+        if resume && cfg_path.is_file() {
+            let saved = crate::io::read_text(&cfg_path)?;
+            if strip_epochs(&saved) != strip_epochs(config_toml) {
+                return Err(Error::invalid(
+                    &cfg_path,
+                    "--resume with a config that differs from the one this run was started with (only the number of epochs may change)",
+                ));
+            }
+        }
+        crate::io::write_atomic(&cfg_path, config_toml.as_bytes())?;
+        Ok(run)
+    }
+
+    fn checkpoints(&self) -> PathBuf {
+        self.root.join("checkpoints")
+    }
+
+    /// The newest complete checkpoint, if any.
+    pub fn latest(&self) -> Result<Option<Checkpoint>> {
+        let last = self.checkpoints().join("last.json");
+        if !last.is_file() {
+            return Ok(None);
+        }
+        let text = crate::io::read_text(&last)?;
+        let l: Last =
+            serde_json::from_str(&text).map_err(|e| Error::invalid(&last, e.to_string()))?;
+        let dir = self.checkpoints().join(&l.checkpoint);
+        Ok(Some(Self::read(&dir)?))
+    }
+
+    /// Reads a checkpoint folder.
+    pub fn read(dir: &Path) -> Result<Checkpoint> {
+        let p = dir.join("state.json");
+        let text = crate::io::read_text(&p)?;
+        let state: TrainState =
+            serde_json::from_str(&text).map_err(|e| Error::invalid(&p, e.to_string()))?;
+        Ok(Checkpoint {
+            dir: dir.to_path_buf(),
+            state,
+        })
+    }
+
+    /// Writes the checkpoint of `state.epoch`: `write_weights` saves the model
+    /// (and optimizer) into the folder it is given; then `state.json` and a copy
+    /// of the config are added, the folder is renamed into place and `last.json`
+    /// updated.
+    pub fn save(
+        &self,
+        state: &TrainState,
+        config_toml: &str,
+        write_weights: impl FnOnce(&Path) -> Result<()>,
+    ) -> Result<Checkpoint> {
+        let name = format!("epoch-{:04}", state.epoch);
+        let dir = self.checkpoints().join(&name);
+        let tmp = self.checkpoints().join(format!(".{name}.tmp"));
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        }
+        std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
+        write_weights(&tmp)?;
+        let json = serde_json::to_string_pretty(state).map_err(|e| Error::msg(e.to_string()))?;
+        crate::io::write_atomic(tmp.join("state.json"), json.as_bytes())?;
+        crate::io::write_atomic(tmp.join("config.toml"), config_toml.as_bytes())?;
+        if dir.exists() {
+            std::fs::remove_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        }
+        std::fs::rename(&tmp, &dir).map_err(|e| Error::io(&dir, e))?;
+        let last = serde_json::to_string(&Last {
+            checkpoint: name,
+            epoch: state.epoch,
+        })
+        .map_err(|e| Error::msg(e.to_string()))?;
+        crate::io::write_atomic(self.checkpoints().join("last.json"), last.as_bytes())?;
+        self.prune(state.epoch)?;
+        Ok(Checkpoint {
+            dir,
+            state: state.clone(),
+        })
+    }
+
+    /// Removes old epoch checkpoints beyond `keep`, never the newest.
+    fn prune(&self, newest: usize) -> Result<()> {
+        if self.keep == 0 {
+            return Ok(());
+        }
+        let dir = self.checkpoints();
+        let mut epochs: Vec<usize> = std::fs::read_dir(&dir)
+            .map_err(|e| Error::io(&dir, e))?
+            .filter_map(|e| e.ok())
+            .filter_map(|e| e.file_name().to_str()?.strip_prefix("epoch-")?.parse().ok())
+            .filter(|&e| e <= newest)
+            .collect();
+        epochs.sort_unstable();
+        let n = epochs.len();
+        for e in epochs.into_iter().take(n.saturating_sub(self.keep)) {
+            let p = dir.join(format!("epoch-{e:04}"));
+            std::fs::remove_dir_all(&p).map_err(|err| Error::io(&p, err))?;
+        }
+        Ok(())
+    }
+}
+
+/// The config text without its `epochs = ...` line(s), to compare configs on resume.
+fn strip_epochs(toml: &str) -> String {
+    toml.lines()
+        .filter(|l| !l.trim_start().starts_with("epochs"))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn save_resume_prune_and_refuse_overwrite() {
+        let root = std::env::temp_dir().join(format!("sdf_run_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let cfg = "lr = 0.1\nepochs = 5\n";
+        let run = RunDir::prepare(&root, cfg, false).unwrap();
+        assert!(
+            RunDir::prepare(&root, cfg, true).is_err(),
+            "nothing to resume yet"
+        );
+        for epoch in 1..=5 {
+            let state = TrainState {
+                epoch,
+                step: 10 * epoch as u64,
+                history: History::default(),
+            };
+            run.save(&state, cfg, |dir| {
+                crate::io::write_atomic(dir.join("model.bpk"), b"w")
+            })
+            .unwrap();
+        }
+        let last = run.latest().unwrap().unwrap();
+        assert_eq!(last.state.epoch, 5);
+        assert!(last.model_path().is_file());
+        let kept: Vec<_> = std::fs::read_dir(root.join("checkpoints"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(kept.len(), 4, "{kept:?}"); // 3 epochs + last.json
+        // A new run in the same folder is refused; a resume with more epochs is fine;
+        // a resume with another learning rate is refused.
+        assert!(
+            RunDir::prepare(&root, cfg, false)
+                .unwrap_err()
+                .to_string()
+                .contains("--resume")
+        );
+        assert!(RunDir::prepare(&root, "lr = 0.1\nepochs = 9\n", true).is_ok());
+        assert!(RunDir::prepare(&root, "lr = 0.2\nepochs = 9\n", true).is_err());
+        // A failed weight write leaves the previous checkpoint as the latest.
+        let state = TrainState {
+            epoch: 6,
+            ..Default::default()
+        };
+        assert!(
+            run.save(&state, cfg, |_| Err(Error::msg("disk full")))
+                .is_err()
+        );
+        assert_eq!(run.latest().unwrap().unwrap().state.epoch, 5);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}

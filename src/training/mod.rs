@@ -1,0 +1,67 @@
+//! What both trainers share: run folders with atomic per-epoch checkpoints and
+//! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
+//! data order, and the NaN guard.
+
+pub mod checkpoint;
+pub mod history;
+
+pub use checkpoint::{Checkpoint, RunDir};
+pub use history::{EpochRecord, History};
+
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+
+/// The order in which an epoch visits `n` samples: a permutation that depends
+/// only on the seed and the epoch, so a resumed run sees the same data order as
+/// an uninterrupted one.
+pub fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..n).collect();
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    order.shuffle(&mut rng);
+    order
+}
+
+/// A seeded RNG for one (epoch, batch): augmentation is reproducible on resume.
+pub fn batch_rng(seed: u64, epoch: usize, batch: usize) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(
+        seed.wrapping_add((epoch as u64) << 32)
+            .wrapping_add(batch as u64)
+            .wrapping_mul(0xD134_2543_DE82_EF95),
+    )
+}
+
+/// Stops training on a non-finite loss with a message that says what was kept.
+pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crate::Result<()> {
+    if loss.is_finite() {
+        return Ok(());
+    }
+    let kept = match run.latest() {
+        Ok(Some(c)) => format!(
+            "the last good checkpoint, epoch {}, is kept in {}",
+            c.state.epoch,
+            c.dir.display()
+        ),
+        _ => "no checkpoint had been written yet".to_string(),
+    };
+    Err(crate::Error::msg(format!(
+        "loss became {loss} at epoch {} batch {batch}: training stopped; {kept}. Lower the learning rate or check the data.",
+        epoch + 1
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn epoch_order_is_a_seeded_permutation() {
+        let a = epoch_order(100, 7, 3);
+        assert_eq!(a, epoch_order(100, 7, 3));
+        assert_ne!(a, epoch_order(100, 7, 4));
+        let mut s = a.clone();
+        s.sort();
+        assert_eq!(s, (0..100).collect::<Vec<_>>());
+    }
+}

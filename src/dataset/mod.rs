@@ -1,5 +1,6 @@
 //! Datasets in their original layouts.
 
+pub mod augment;
 pub mod depth;
 pub mod labels;
 pub mod nyu;

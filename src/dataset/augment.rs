@@ -133,8 +133,8 @@ pub fn augment(
                 out.depth[i] = d.data[(vi * d.width + ui) as usize];
             }
             let gray = 0.299 * px[0] + 0.587 * px[1] + 0.114 * px[2];
-            for k in 0..3 {
-                out.rgb[k * n + i] = gray + s * (px[k] - gray);
+            for (k, c) in px.iter().enumerate() {
+                out.rgb[k * n + i] = gray + s * (c - gray);
             }
             mean += gray;
         }

@@ -1,1 +1,5 @@
-pub fn _x(){}
+pub fn _x() {}
+
+pub mod fpfdcnn;
+pub mod nn;
+pub mod sdfcnn;

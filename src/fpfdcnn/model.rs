@@ -15,7 +15,7 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
 use burn::tensor::activation::{elu, sigmoid};
 
-use crate::nn::{ShapeTrace, pixel_shuffle, resize_bilinear};
+use crate::nn::{SampleError, ShapeTrace, pixel_shuffle, resize_bilinear, sample_bilinear_at};
 
 /// ELU slope of the negative part (Table 12, footnote 1: `a(eˣ − 1)`, `a = 1`).
 const ELU_ALPHA: f64 = 1.0;
@@ -57,6 +57,12 @@ pub enum FpfdcnnError {
     /// The configuration cannot be built.
     #[error("invalid FPFDCNN config: {0}")]
     Config(String),
+    /// Keypoint descriptor sampling failed.
+    #[error(transparent)]
+    Sample(#[from] SampleError),
+    /// The descriptor tensor could not be read back as `f32`.
+    #[error("reading descriptors: {0}")]
+    Data(String),
 }
 
 /// FPFDCNN outputs before the FD layer.
@@ -209,6 +215,31 @@ impl Fpfdcnn {
         resize_bilinear(descriptors, [height, width])
     }
 
+    /// FD_FP layer (Table 12): descriptors of image `batch` at full-resolution keypoints
+    /// `(x, y)`, bilinearly sampled from the coarse map `descriptors` (`[N, D, H/cell,
+    /// W/cell]`) exactly as [`Self::full_descriptors`] would give them, without upsampling the
+    /// whole map. Returns one `D`-vector per point.
+    pub fn descriptors_at(
+        &self,
+        descriptors: &Tensor<4>,
+        batch: usize,
+        [height, width]: [usize; 2],
+        points: &[(usize, usize)],
+    ) -> Result<Vec<Vec<f32>>, FpfdcnnError> {
+        let [n, d, hc, wc] = descriptors.dims();
+        if batch >= n {
+            return Err(FpfdcnnError::Data(format!("batch {batch} of {n}")));
+        }
+        let map = descriptors
+            .clone()
+            .slice(s![batch..batch + 1])
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|e| FpfdcnnError::Data(format!("{e:?}")))?;
+        let flat = sample_bilinear_at(&map, [d, hc, wc], [height, width], points)?;
+        Ok(flat.chunks_exact(d).map(<[f32]>::to_vec).collect())
+    }
+
     /// Cell size (16).
     pub fn cell(&self) -> usize {
         self.cell
@@ -216,15 +247,15 @@ impl Fpfdcnn {
 }
 
 fn describe(layer: &Conv2d, activation: &str) -> String {
-    let [k, _] = layer.kernel_size;
+    let [out, input, k, _] = layer.weight.dims();
     let [s, _] = layer.stride;
-    format!("conv {k}x{k} s{s}, {activation}")
+    format!("conv {k}x{k} s{s} {input}->{out}, {activation}")
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nn::{sample_bilinear_at, trainable_params};
+    use crate::nn::trainable_params;
 
     #[allow(deprecated)]
     fn ndarray() -> Device {
@@ -284,25 +315,30 @@ mod tests {
         let m = model(&d);
         let x = Tensor::<4>::random([1, 1, 32, 48], burn::tensor::Distribution::Default, &d);
         let out = m.forward(x).expect("valid input");
-        let coarse = out
-            .descriptors
-            .clone()
-            .into_data()
-            .try_to_vec::<f32>()
-            .expect("f32");
         let full = m
-            .full_descriptors(out.descriptors, [32, 48])
+            .full_descriptors(out.descriptors.clone(), [32, 48])
             .into_data()
             .try_to_vec::<f32>()
             .expect("f32");
         let points = [(0, 0), (47, 31), (5, 17), (23, 8), (40, 1)];
-        let sampled = sample_bilinear_at(&coarse, [256, 2, 3], [32, 48], &points).expect("valid");
-        for (k, &(x, y)) in points.iter().enumerate() {
-            for c in 0..256 {
+        let sampled = m
+            .descriptors_at(&out.descriptors, 0, [32, 48], &points)
+            .expect("valid points");
+        for (desc, &(x, y)) in sampled.iter().zip(&points) {
+            assert_eq!(desc.len(), 256);
+            for (c, v) in desc.iter().enumerate() {
                 let want = full[c * 32 * 48 + y * 48 + x];
-                assert!((sampled[k * 256 + c] - want).abs() <= 1e-5);
+                assert!((v - want).abs() <= 1e-5);
             }
         }
+        assert!(
+            m.descriptors_at(&out.descriptors, 1, [32, 48], &points)
+                .is_err()
+        );
+        assert!(matches!(
+            m.descriptors_at(&out.descriptors, 0, [32, 48], &[(48, 0)]),
+            Err(FpfdcnnError::Sample(_))
+        ));
     }
 
     #[test]

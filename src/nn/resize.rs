@@ -300,7 +300,12 @@ mod tests {
 
     #[test]
     fn resize_backward_matches_finite_differences() {
-        let device = ndarray().autodiff();
+        for device in [ndarray().autodiff(), Device::flex().autodiff()] {
+            backward_matches_finite_differences(device);
+        }
+    }
+
+    fn backward_matches_finite_differences(device: Device) {
         let shape = [1, 2, 3, 4];
         let base: Vec<f32> = (0..24).map(|i| ((i * 7 % 11) as f32) * 0.3 - 1.0).collect();
         // Loss = Σ out ⊙ r with a fixed random-looking r, so dL/dx = Rᵀ-interpolation of r.

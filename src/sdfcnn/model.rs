@@ -42,7 +42,10 @@
 //! 10. seg1 lists bias 256; it has one bias per class (40).
 //! 11. Pre_Layer references that point to the wrong row (Layer7_13 "Layer7_10", Layer9_2
 //!     "Layer9_2", …) are read in table order.
-//! 12. Feature-map sizes are printed W×H in the table except Layer7 (10×13 is H×W). With
+//! 12. The text normalises (eq. 15) before the Layer0 resize; here the resize comes first (fewer
+//!     pixels). Both orders give the same result: the interpolation weights sum to 1 and the
+//!     normalisation is a per-channel affine map.
+//! 13. Feature-map sizes are printed W×H in the table except Layer7 (10×13 is H×W). With
 //!     padding 1 the sizes for 300×400 are exactly the table's: 150×200, 75×100, 38×50, 19×25,
 //!     10×13 (H×W); no deviation.
 //!

@@ -1,23 +1,28 @@
 //! # sdf-slam
 //!
 //! A pure-Rust reproduction of SDF-SLAM (Yang et al., IEEE Access 2021): learned
-//! keypoints and descriptors (FPFDCNN), joint semantic segmentation and metric
-//! depth (SDFCNN), and a monocular / RGB-D SLAM that builds a 3D semantic map.
+//! keypoints and descriptors ([`fpfdcnn`], Table 12), joint semantic segmentation
+//! and metric depth ([`sdfcnn`], Table 13), and a monocular / RGB-D SLAM that
+//! builds a 3D semantic map.
 //!
 //! Foundation modules: [`camera`] (pinhole + Brown-Conrady), [`geometry`]
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
-//! sequences), [`metrics`] (ATE/RPE as evo computes them, errT/errR), [`plot`].
+//! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
+//! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs).
 
 pub mod camera;
 pub mod dataset;
 pub mod error;
 pub mod features;
+pub mod fpfdcnn;
 pub mod geometry;
 pub mod imageio;
 pub mod io;
 pub mod metrics;
+pub mod nn;
 pub mod plot;
 pub mod raster;
+pub mod sdfcnn;
 pub mod training;
 pub mod trajectory;
 

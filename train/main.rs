@@ -1,0 +1,132 @@
+//! `train`: command-line entry point for the SDF-SLAM networks.
+//!
+//! `train summary fpfdcnn|sdfcnn` runs one forward pass on a zero image and prints each layer's
+//! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
+//! the trainable-parameter count. Training subcommands (driven by a `--config` file) are added
+//! as further [`Command`] variants.
+
+use anyhow::{Context, Result};
+use burn::prelude::*;
+use clap::{Parser, Subcommand, ValueEnum};
+use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::nn::{ShapeTrace, trainable_params};
+use sdf_slam::sdfcnn::SdfcnnConfig;
+
+#[derive(Parser, Debug)]
+#[command(about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Print every layer's output shape for one input, and the parameter count.
+    Summary(SummaryArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct SummaryArgs {
+    /// Network to summarise.
+    network: Network,
+    /// Input height.
+    #[arg(long, default_value_t = 480)]
+    height: usize,
+    /// Input width.
+    #[arg(long, default_value_t = 640)]
+    width: usize,
+    /// Burn backend to run the forward pass on.
+    #[arg(long, value_enum, default_value_t = Backend::Ndarray)]
+    backend: Backend,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum Network {
+    /// Keypoint detector/descriptor (Table 12).
+    Fpfdcnn,
+    /// Semantic segmentation + depth (Table 13).
+    Sdfcnn,
+}
+
+#[derive(ValueEnum, Clone, Copy, Debug)]
+enum Backend {
+    /// burn-ndarray (CPU).
+    Ndarray,
+    /// burn-flex (pure-Rust CPU).
+    Flex,
+}
+
+impl Backend {
+    fn device(self) -> Device {
+        match self {
+            #[allow(deprecated)] // NdArray is the project's training backend.
+            Self::Ndarray => Device::ndarray(),
+            Self::Flex => Device::flex(),
+        }
+    }
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Summary(args) => summary(&args),
+    }
+}
+
+fn summary(args: &SummaryArgs) -> Result<()> {
+    let device = args.backend.device();
+    let [h, w] = [args.height, args.width];
+    let mut trace = ShapeTrace::enabled();
+    let (parameters, all) = match args.network {
+        Network::Fpfdcnn => {
+            let model = FpfdcnnConfig::new()
+                .init(&device)
+                .context("building FPFDCNN")?;
+            let out = model
+                .forward_traced(Tensor::zeros([1, 1, h, w], &device), &mut trace)
+                .context("FPFDCNN forward")?;
+            let fd = model.full_descriptors(out.descriptors, [h, w]);
+            trace.record("FD", "bilinear", &fd);
+            (trainable_params(&model), model.num_params())
+        }
+        Network::Sdfcnn => {
+            let model = SdfcnnConfig::new()
+                .init(&device)
+                .context("building SDFCNN")?;
+            if h == 0 || w == 0 {
+                anyhow::bail!("empty input size {h}x{w}");
+            }
+            model
+                .forward_traced(Tensor::zeros([1, 3, h, w], &device), &mut trace)
+                .context("SDFCNN forward")?;
+            (trainable_params(&model), model.num_params())
+        }
+    };
+    println!(
+        "{:?} on {:?}, input {h}x{w} (HxW)",
+        args.network, args.backend
+    );
+    println!(
+        "{:<14} {:<36} {:<22} H×W×C",
+        "layer", "method", "output [N, C, H, W]"
+    );
+    for layer in trace.layers() {
+        let hwc = match layer.shape[..] {
+            [_, c, h, w] => format!("{h}×{w}×{c}"),
+            _ => String::new(),
+        };
+        println!(
+            "{:<14} {:<36} {:<22} {hwc}",
+            layer.name,
+            layer.method,
+            format!("{:?}", layer.shape)
+        );
+    }
+    println!("parameters: {parameters}");
+    if all > parameters {
+        println!(
+            "batch-norm running statistics (not trainable): {}",
+            all - parameters
+        );
+    }
+    Ok(())
+}

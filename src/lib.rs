@@ -17,6 +17,8 @@ pub mod imageio;
 pub mod io;
 pub mod metrics;
 pub mod plot;
+pub mod pnp;
+pub mod range_matcher;
 pub mod raster;
 pub mod trajectory;
 

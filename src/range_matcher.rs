@@ -105,9 +105,24 @@ impl Grid {
     }
 }
 
+/// Squared Euclidean distance, with eight partial sums so that it vectorises.
 #[inline]
 fn squared_l2(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+    let mut acc = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum();
+    for (xa, xb) in ca.zip(cb) {
+        for k in 0..8 {
+            let d = xa[k] - xb[k];
+            acc[k] += d * d;
+        }
+    }
+    acc.iter().sum::<f32>() + tail
 }
 
 /// Nearest and second-nearest squared distances of `query` among the window's

@@ -5,8 +5,8 @@
 //! depth reading cannot be judged and are not counted.
 
 use crate::camera::Camera;
-use crate::dataset::DepthImage;
 use crate::dataset::fp_pairs::transfer;
+use crate::dataset::{DepthImage, Frame};
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use nalgebra::Point2;
@@ -94,6 +94,39 @@ pub fn matching_accuracy(
     let judged: Vec<f64> = errors.into_iter().flatten().collect();
     let correct = judged.iter().filter(|&&e| e <= tolerance_px).count();
     Ok(MatchingAccuracy::new(correct, judged.len()))
+}
+
+/// [`matching_accuracy`] of a loaded frame pair: A's depth and both frames'
+/// ground-truth poses (interpolated at their RGB timestamps). Errors when A has no
+/// depth or either frame no ground truth.
+pub fn frame_pair_accuracy(
+    matches: &[(Point2<f64>, Point2<f64>)],
+    a: &Frame,
+    b: &Frame,
+    camera: &Camera,
+) -> Result<MatchingAccuracy> {
+    let depth = a.depth.as_ref().ok_or_else(|| {
+        Error::msg(format!(
+            "matching accuracy needs the first frame's depth: frame {} has none",
+            a.index
+        ))
+    })?;
+    let pose = |f: &Frame| {
+        f.gt_pose.ok_or_else(|| {
+            Error::msg(format!(
+                "matching accuracy needs ground truth: frame {} has no pose",
+                f.index
+            ))
+        })
+    };
+    matching_accuracy(
+        matches,
+        depth,
+        camera,
+        &pose(a)?,
+        &pose(b)?,
+        CORRECT_MATCH_PX,
+    )
 }
 
 #[cfg(test)]

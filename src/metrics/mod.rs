@@ -7,7 +7,7 @@ pub mod pose_error;
 pub mod stats;
 pub mod trajectory;
 
-pub use matching::{MatchingAccuracy, matching_accuracy};
+pub use matching::{MatchingAccuracy, frame_pair_accuracy, matching_accuracy};
 pub use pose_error::{PoseError, PoseErrorSegment};
 pub use stats::Stats;
 pub use trajectory::{Alignment, Ape, DeltaUnit, Rpe, ape, associate, rpe, umeyama};

@@ -21,6 +21,8 @@ pub mod io;
 pub mod metrics;
 pub mod nn;
 pub mod plot;
+pub mod pnp;
+pub mod range_matcher;
 pub mod raster;
 pub mod sdfcnn;
 pub mod training;

@@ -1,12 +1,15 @@
-//! Datasets in their original layouts.
+//! Datasets in their original layouts, training pairs and augmentation.
 
 pub mod augment;
 pub mod depth;
+pub mod fp_pairs;
 pub mod labels;
 pub mod nyu;
+pub mod photometric;
 pub mod tum;
 
 pub use depth::DepthImage;
+pub use fp_pairs::{FpConfig, FpMatch, FpPair, fp_pair, fp_pairs};
 pub use labels::LabelImage;
 pub use nyu::{NyuDataset, NyuItem};
 pub use tum::{Frame, FrameInfo, TumConfig, TumSequence, associate};

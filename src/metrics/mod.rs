@@ -1,14 +1,17 @@
 //! Evaluation metrics: trajectory errors as evo computes them (ATE/RPE), the
-//! paper's errT/errR (eqs 11-14), segmentation (eqs 16-17) and depth (eqs 18-20)
-//! accuracy, and summary statistics.
+//! paper's errT/errR (eqs 11-14), feature-matching accuracy (Table 6),
+//! segmentation (eqs 16-17) and depth (eqs 18-20) accuracy, and summary
+//! statistics.
 
 pub mod depth;
+pub mod matching;
 pub mod pose_error;
 pub mod segmentation;
 pub mod stats;
 pub mod trajectory;
 
 pub use depth::{DepthAccumulator, DepthMetrics};
+pub use matching::{MatchingAccuracy, frame_pair_accuracy, matching_accuracy};
 pub use pose_error::{PoseError, PoseErrorSegment};
 pub use segmentation::{ClassScore, ConfusionMatrix};
 pub use stats::Stats;

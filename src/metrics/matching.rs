@@ -1,0 +1,179 @@
+//! Feature-matching accuracy of the paper's Table 6 (section V-B): a match
+//! `(pixel in A, pixel in B)` is correct when the B keypoint lies within 5 px of the
+//! ground-truth projection of its A partner (A's depth, the camera with its
+//! distortion and the ground-truth poses: eq 7). Matches whose A keypoint has no
+//! depth reading cannot be judged and are not counted.
+
+use crate::camera::Camera;
+use crate::dataset::fp_pairs::transfer;
+use crate::dataset::{DepthImage, Frame};
+use crate::error::{Error, Result};
+use crate::geometry::Pose;
+use nalgebra::Point2;
+use serde::{Deserialize, Serialize};
+
+/// The paper's correctness radius, pixels.
+pub const CORRECT_MATCH_PX: f64 = 5.0;
+
+/// Correct matches among the judged ones (Table 6: "correct matching / match point").
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct MatchingAccuracy {
+    pub correct: usize,
+    pub matches: usize,
+    /// `correct / matches` (0 without matches).
+    pub accuracy: f64,
+}
+
+impl MatchingAccuracy {
+    pub fn new(correct: usize, matches: usize) -> Self {
+        MatchingAccuracy {
+            correct,
+            matches,
+            accuracy: if matches == 0 {
+                0.0
+            } else {
+                correct as f64 / matches as f64
+            },
+        }
+    }
+
+    /// Pools several frame pairs as the paper's totals do (sums of counts).
+    pub fn pool(items: &[MatchingAccuracy]) -> Self {
+        Self::new(
+            items.iter().map(|m| m.correct).sum(),
+            items.iter().map(|m| m.matches).sum(),
+        )
+    }
+}
+
+/// Distance in pixels between each match's B keypoint and the ground-truth
+/// projection of its A keypoint; `None` when A has no depth there. A point that
+/// projects behind camera B gets an infinite error.
+pub fn match_errors(
+    matches: &[(Point2<f64>, Point2<f64>)],
+    depth_a: &DepthImage,
+    camera: &Camera,
+    pose_a: &Pose,
+    pose_b: &Pose,
+) -> Result<Vec<Option<f64>>> {
+    if (depth_a.width, depth_a.height) != (camera.width, camera.height) {
+        return Err(Error::msg(format!(
+            "depth image is {}x{} but the camera is {}x{}",
+            depth_a.width, depth_a.height, camera.width, camera.height
+        )));
+    }
+    Ok(matches
+        .iter()
+        .map(|(pa, pb)| {
+            let z = depth_a.at(pa.x, pa.y)?;
+            Some(match transfer(camera, pa, z as f64, pose_a, pose_b) {
+                Some((gt, _)) => (gt - pb).norm(),
+                None => f64::INFINITY,
+            })
+        })
+        .collect())
+}
+
+/// Matching accuracy of one frame pair with correctness radius `tolerance_px`
+/// ([`CORRECT_MATCH_PX`] in the paper). Poses are camera-to-world ground truth at
+/// the two images' timestamps.
+pub fn matching_accuracy(
+    matches: &[(Point2<f64>, Point2<f64>)],
+    depth_a: &DepthImage,
+    camera: &Camera,
+    pose_a: &Pose,
+    pose_b: &Pose,
+    tolerance_px: f64,
+) -> Result<MatchingAccuracy> {
+    if !(tolerance_px.is_finite() && tolerance_px > 0.0) {
+        return Err(Error::msg(format!(
+            "match tolerance must be a positive number of pixels, got {tolerance_px}"
+        )));
+    }
+    let errors = match_errors(matches, depth_a, camera, pose_a, pose_b)?;
+    let judged: Vec<f64> = errors.into_iter().flatten().collect();
+    let correct = judged.iter().filter(|&&e| e <= tolerance_px).count();
+    Ok(MatchingAccuracy::new(correct, judged.len()))
+}
+
+/// [`matching_accuracy`] of a loaded frame pair: A's depth and both frames'
+/// ground-truth poses (interpolated at their RGB timestamps). Errors when A has no
+/// depth or either frame no ground truth.
+pub fn frame_pair_accuracy(
+    matches: &[(Point2<f64>, Point2<f64>)],
+    a: &Frame,
+    b: &Frame,
+    camera: &Camera,
+) -> Result<MatchingAccuracy> {
+    let depth = a.depth.as_ref().ok_or_else(|| {
+        Error::msg(format!(
+            "matching accuracy needs the first frame's depth: frame {} has none",
+            a.index
+        ))
+    })?;
+    let pose = |f: &Frame| {
+        f.gt_pose.ok_or_else(|| {
+            Error::msg(format!(
+                "matching accuracy needs ground truth: frame {} has no pose",
+                f.index
+            ))
+        })
+    };
+    matching_accuracy(
+        matches,
+        depth,
+        camera,
+        &pose(a)?,
+        &pose(b)?,
+        CORRECT_MATCH_PX,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion, Vector2, Vector3};
+
+    #[test]
+    fn counts_correct_wrong_and_unjudged_matches() {
+        let cam = Camera::tum_fr1();
+        let mut depth = DepthImage::new(640, 480);
+        depth.data.iter_mut().for_each(|d| *d = 2.0);
+        depth.data[100 * 640 + 100] = 0.0; // no reading at (100, 100)
+        let pose_a = Pose::identity();
+        let pose_b = Pose::from_parts(
+            Translation3::new(0.1, 0.0, 0.0),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 0.02),
+        );
+        let gt = |u: f64, v: f64| {
+            transfer(&cam, &Point2::new(u, v), 2.0, &pose_a, &pose_b)
+                .unwrap()
+                .0
+        };
+        let g1 = gt(300.0, 200.0);
+        let g2 = gt(400.0, 300.0);
+        let matches = vec![
+            (Point2::new(300.0, 200.0), g1 + Vector2::new(2.94, 3.92)), // 4.9 px: correct
+            (Point2::new(400.0, 300.0), g2 + Vector2::new(5.1, 0.0)),   // wrong
+            (Point2::new(100.0, 100.0), Point2::new(0.0, 0.0)),         // not judged
+        ];
+        let acc =
+            matching_accuracy(&matches, &depth, &cam, &pose_a, &pose_b, CORRECT_MATCH_PX).unwrap();
+        assert_eq!((acc.correct, acc.matches), (1, 2));
+        assert!((acc.accuracy - 0.5).abs() < 1e-12);
+        let errs = match_errors(&matches, &depth, &cam, &pose_a, &pose_b).unwrap();
+        assert!((errs[0].unwrap() - 4.9).abs() < 1e-9 && errs[2].is_none());
+        let pooled = MatchingAccuracy::pool(&[acc, MatchingAccuracy::new(3, 4)]);
+        assert_eq!((pooled.correct, pooled.matches), (4, 6));
+        assert_eq!(MatchingAccuracy::pool(&[]).accuracy, 0.0);
+        assert!(matching_accuracy(&matches, &depth, &cam, &pose_a, &pose_b, 0.0).is_err());
+        let small = DepthImage::new(320, 240);
+        assert!(match_errors(&matches, &small, &cam, &pose_a, &pose_b).is_err());
+    }
+
+    #[test]
+    fn serialises_as_table_6_needs() {
+        let json = serde_json::to_string(&MatchingAccuracy::new(276, 329)).unwrap();
+        assert!(json.contains("\"correct\":276") && json.contains("\"matches\":329"));
+    }
+}

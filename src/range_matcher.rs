@@ -1,0 +1,395 @@
+//! The paper's range matcher (section IV-B, Fig. 4, eq 8): every keypoint of
+//! image 1 is paired with the keypoint of image 2 whose descriptor is nearest in
+//! Euclidean distance (eq 8) among the keypoints of image 2 inside a square window
+//! of side 140 px centred at its position. Optional mutual-nearest and Lowe ratio
+//! checks prune ambiguous pairs.
+//!
+//! Descriptors are `f32` rows of any dimension, stored row-major. Image-2 keypoints
+//! are bucketed in a grid of half-window cells, so a query visits at most 9 cells.
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Range matcher settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RangeMatcherConfig {
+    /// Side of the square search window in pixels (the paper: 140). A keypoint of
+    /// image 2 is a candidate when `|dx| ≤ window / 2` and `|dy| ≤ window / 2`.
+    pub window: f32,
+    /// Keep a pair only when the keypoint of image 1 is also the nearest, among the
+    /// image-1 keypoints in the window around the image-2 keypoint.
+    pub mutual: bool,
+    /// Lowe's ratio test: keep a pair when its distance is below `ratio` times the
+    /// second-nearest candidate's (a lone candidate passes).
+    pub ratio: Option<f32>,
+}
+
+impl Default for RangeMatcherConfig {
+    fn default() -> Self {
+        RangeMatcherConfig {
+            window: 140.0,
+            mutual: false,
+            ratio: None,
+        }
+    }
+}
+
+/// A pair: keypoint `i` of image 1, keypoint `j` of image 2, Euclidean descriptor
+/// distance (eq 8).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RangeMatch {
+    pub i: usize,
+    pub j: usize,
+    pub distance: f32,
+}
+
+/// Keypoints bucketed in square cells.
+struct Grid {
+    origin: [f32; 2],
+    cell: f32,
+    cols: usize,
+    rows: usize,
+    cells: Vec<Vec<usize>>,
+}
+
+impl Grid {
+    fn new(points: &[[f32; 2]], cell: f32) -> Self {
+        let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+        for p in points {
+            for a in 0..2 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        if points.is_empty() {
+            lo = [0.0; 2];
+            hi = [0.0; 2];
+        }
+        // Cap the grid size so that an enormous spread cannot exhaust memory.
+        let cell = cell.max((hi[0] - lo[0]).max(hi[1] - lo[1]) / 1024.0);
+        let cols = ((hi[0] - lo[0]) / cell) as usize + 1;
+        let rows = ((hi[1] - lo[1]) / cell) as usize + 1;
+        let mut cells = vec![Vec::new(); cols * rows];
+        for (k, p) in points.iter().enumerate() {
+            let c = (((p[0] - lo[0]) / cell) as usize).min(cols - 1);
+            let r = (((p[1] - lo[1]) / cell) as usize).min(rows - 1);
+            cells[r * cols + c].push(k);
+        }
+        Grid {
+            origin: lo,
+            cell,
+            cols,
+            rows,
+            cells,
+        }
+    }
+
+    /// Indices of the points whose cells overlap `[c - half, c + half]²`.
+    fn candidates(&self, c: [f32; 2], half: f32) -> impl Iterator<Item = usize> + '_ {
+        let range = |v: f32, o: f32, n: usize| {
+            let lo = ((v - half - o) / self.cell).floor();
+            let hi = ((v + half - o) / self.cell).floor();
+            if hi < 0.0 || lo > (n - 1) as f32 {
+                (1, 0) // empty
+            } else {
+                (lo.max(0.0) as usize, (hi as usize).min(n - 1))
+            }
+        };
+        let (c0, c1) = range(c[0], self.origin[0], self.cols);
+        let (r0, r1) = range(c[1], self.origin[1], self.rows);
+        (r0..=r1).flat_map(move |r| {
+            (c0..=c1).flat_map(move |col| self.cells[r * self.cols + col].iter().copied())
+        })
+    }
+}
+
+/// Squared Euclidean distance, with eight partial sums so that it vectorises.
+#[inline]
+fn squared_l2(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum();
+    for (xa, xb) in ca.zip(cb) {
+        for k in 0..8 {
+            let d = xa[k] - xb[k];
+            acc[k] += d * d;
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
+/// Nearest and second-nearest squared distances of `query` among the window's
+/// candidates (ties to the lower index).
+fn nearest(
+    query: &[f32],
+    centre: [f32; 2],
+    half: f32,
+    grid: &Grid,
+    points: &[[f32; 2]],
+    desc: &[f32],
+    dim: usize,
+) -> Option<(usize, f32, f32)> {
+    let mut best: Option<(usize, f32)> = None;
+    let mut second = f32::INFINITY;
+    for k in grid.candidates(centre, half) {
+        let p = points[k];
+        if (p[0] - centre[0]).abs() > half || (p[1] - centre[1]).abs() > half {
+            continue;
+        }
+        let d = squared_l2(query, &desc[k * dim..(k + 1) * dim]);
+        match best {
+            Some((bk, bd)) if d > bd || (d == bd && k > bk) => second = second.min(d),
+            Some((_, bd)) => {
+                second = second.min(bd);
+                best = Some((k, d));
+            }
+            None => best = Some((k, d)),
+        }
+    }
+    best.map(|(k, d)| (k, d, second))
+}
+
+fn check_inputs(name: &str, points: &[[f32; 2]], desc: &[f32], dim: usize) -> Result<()> {
+    if desc.len() != points.len() * dim {
+        return Err(Error::msg(format!(
+            "range matcher: image {name} has {} keypoints but {} descriptor values (expected {} x {dim})",
+            points.len(),
+            desc.len(),
+            points.len()
+        )));
+    }
+    if let Some(k) = points
+        .iter()
+        .position(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return Err(Error::msg(format!(
+            "range matcher: keypoint {k} of image {name} has a non-finite position"
+        )));
+    }
+    if desc.iter().any(|v| !v.is_finite()) {
+        return Err(Error::msg(format!(
+            "range matcher: image {name} has non-finite descriptor values"
+        )));
+    }
+    Ok(())
+}
+
+/// Matches keypoints `points1` (descriptors `desc1`, `dim` values per keypoint) to
+/// `points2` (`desc2`) with the range matcher. Returns pairs in order of `i`.
+pub fn range_match(
+    points1: &[[f32; 2]],
+    desc1: &[f32],
+    points2: &[[f32; 2]],
+    desc2: &[f32],
+    dim: usize,
+    cfg: &RangeMatcherConfig,
+) -> Result<Vec<RangeMatch>> {
+    if dim == 0 {
+        return Err(Error::msg(
+            "range matcher: descriptor dimension must be positive",
+        ));
+    }
+    if !(cfg.window.is_finite() && cfg.window > 0.0) {
+        return Err(Error::msg(format!(
+            "range matcher: window side must be a positive number of pixels, got {}",
+            cfg.window
+        )));
+    }
+    if let Some(r) = cfg.ratio
+        && !(r > 0.0 && r <= 1.0)
+    {
+        return Err(Error::msg(format!(
+            "range matcher: ratio must be in (0, 1], got {r}"
+        )));
+    }
+    check_inputs("1", points1, desc1, dim)?;
+    check_inputs("2", points2, desc2, dim)?;
+    if points1.is_empty() || points2.is_empty() {
+        return Ok(Vec::new());
+    }
+    let half = cfg.window / 2.0;
+    let grid2 = Grid::new(points2, half);
+    let grid1 = cfg.mutual.then(|| Grid::new(points1, half));
+    let matches = (0..points1.len())
+        .into_par_iter()
+        .filter_map(|i| {
+            let q = &desc1[i * dim..(i + 1) * dim];
+            let (j, d, second) = nearest(q, points1[i], half, &grid2, points2, desc2, dim)?;
+            if let Some(r) = cfg.ratio
+                && d.sqrt() >= r * second.sqrt()
+            {
+                return None;
+            }
+            if let Some(g1) = &grid1 {
+                let back = &desc2[j * dim..(j + 1) * dim];
+                let (i_back, _, _) = nearest(back, points2[j], half, g1, points1, desc1, dim)?;
+                if i_back != i {
+                    return None;
+                }
+            }
+            Some(RangeMatch {
+                i,
+                j,
+                distance: d.sqrt(),
+            })
+        })
+        .collect();
+    Ok(matches)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn brute_force(
+        p1: &[[f32; 2]],
+        d1: &[f32],
+        p2: &[[f32; 2]],
+        d2: &[f32],
+        dim: usize,
+        half: f32,
+    ) -> Vec<RangeMatch> {
+        let mut out = Vec::new();
+        for i in 0..p1.len() {
+            let mut best: Option<(usize, f32)> = None;
+            for j in 0..p2.len() {
+                if (p1[i][0] - p2[j][0]).abs() > half || (p1[i][1] - p2[j][1]).abs() > half {
+                    continue;
+                }
+                let d = squared_l2(&d1[i * dim..(i + 1) * dim], &d2[j * dim..(j + 1) * dim]);
+                if best.is_none_or(|(_, bd)| d < bd) {
+                    best = Some((j, d));
+                }
+            }
+            if let Some((j, d)) = best {
+                out.push(RangeMatch {
+                    i,
+                    j,
+                    distance: d.sqrt(),
+                });
+            }
+        }
+        out
+    }
+
+    fn random_set(rng: &mut ChaCha8Rng, n: usize, dim: usize) -> (Vec<[f32; 2]>, Vec<f32>) {
+        let pts = (0..n)
+            .map(|_| [rng.random_range(0.0..640.0), rng.random_range(0.0..480.0)])
+            .collect();
+        let desc = (0..n * dim).map(|_| rng.random_range(-1.0..1.0)).collect();
+        (pts, desc)
+    }
+
+    #[test]
+    fn finds_the_exact_nearest_in_the_window() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let dim = 24;
+        let (p1, d1) = random_set(&mut rng, 700, dim);
+        let (p2, d2) = random_set(&mut rng, 1500, dim);
+        let got = range_match(&p1, &d1, &p2, &d2, dim, &RangeMatcherConfig::default()).unwrap();
+        let want = brute_force(&p1, &d1, &p2, &d2, dim, 70.0);
+        assert_eq!(got.len(), want.len());
+        for (g, w) in got.iter().zip(&want) {
+            assert_eq!((g.i, g.j), (w.i, w.j));
+            assert!((g.distance - w.distance).abs() < 1e-5);
+        }
+        // Mutual matches are a subset, each the nearest both ways.
+        let cfg = RangeMatcherConfig {
+            mutual: true,
+            ..RangeMatcherConfig::default()
+        };
+        let mutual = range_match(&p1, &d1, &p2, &d2, dim, &cfg).unwrap();
+        assert!(!mutual.is_empty() && mutual.len() < got.len());
+        let back = brute_force(&p2, &d2, &p1, &d1, dim, 70.0);
+        for m in &mutual {
+            assert!(back.iter().any(|b| b.i == m.j && b.j == m.i));
+        }
+    }
+
+    #[test]
+    fn window_excludes_far_keypoints() {
+        let p1 = [[100.0, 100.0]];
+        let d1 = [1.0, 0.0];
+        // An identical descriptor 71 px to the right, a poor one 70 px below.
+        let p2 = [[171.0, 100.0], [100.0, 170.0]];
+        let d2 = [1.0, 0.0, -1.0, 0.0];
+        let cfg = RangeMatcherConfig::default();
+        let m = range_match(&p1, &d1, &p2, &d2, 2, &cfg).unwrap();
+        assert_eq!((m[0].j, m[0].distance), (1, 2.0));
+        let wide = RangeMatcherConfig {
+            window: 150.0,
+            ..cfg.clone()
+        };
+        assert_eq!(range_match(&p1, &d1, &p2, &d2, 2, &wide).unwrap()[0].j, 0);
+        let narrow = RangeMatcherConfig {
+            window: 100.0,
+            ..cfg
+        };
+        assert!(
+            range_match(&p1, &d1, &p2, &d2, 2, &narrow)
+                .unwrap()
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn mutual_and_ratio_checks() {
+        // Image-1 keypoints 0 and 1 both prefer image-2 keypoint 0, which prefers 1.
+        let p1 = [[50.0, 50.0], [60.0, 50.0]];
+        let d1 = [0.0, 0.0, 0.9, 0.0];
+        let p2 = [[55.0, 55.0], [58.0, 52.0]];
+        let d2 = [1.0, 0.0, 0.0, 5.0];
+        let plain = range_match(&p1, &d1, &p2, &d2, 2, &RangeMatcherConfig::default()).unwrap();
+        assert_eq!(
+            plain.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(),
+            vec![(0, 0), (1, 0)]
+        );
+        let mutual = RangeMatcherConfig {
+            mutual: true,
+            ..RangeMatcherConfig::default()
+        };
+        let m = range_match(&p1, &d1, &p2, &d2, 2, &mutual).unwrap();
+        assert_eq!(
+            m.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(),
+            vec![(1, 0)]
+        );
+        // Keypoint 0: nearest 1.0, second 5.0 (ratio 0.2); keypoint 1: 0.1 vs 5.08.
+        let strict = RangeMatcherConfig {
+            ratio: Some(0.1),
+            ..RangeMatcherConfig::default()
+        };
+        let r = range_match(&p1, &d1, &p2, &d2, 2, &strict).unwrap();
+        assert_eq!(r.iter().map(|m| m.i).collect::<Vec<_>>(), vec![1]);
+        // A lone candidate passes the ratio test.
+        let lone = range_match(&p1[..1], &d1[..2], &p2[..1], &d2[..2], 2, &strict).unwrap();
+        assert_eq!(lone.len(), 1);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let cfg = RangeMatcherConfig::default();
+        let p = [[0.0, 0.0]];
+        assert!(range_match(&p, &[1.0, 2.0], &p, &[1.0], 2, &cfg).is_err());
+        assert!(range_match(&p, &[1.0], &p, &[1.0], 0, &cfg).is_err());
+        assert!(range_match(&[[f32::NAN, 0.0]], &[1.0], &p, &[1.0], 1, &cfg).is_err());
+        let bad = RangeMatcherConfig {
+            ratio: Some(1.5),
+            ..cfg.clone()
+        };
+        assert!(range_match(&p, &[1.0], &p, &[1.0], 1, &bad).is_err());
+        assert!(
+            range_match(&[], &[], &p, &[1.0], 1, &cfg)
+                .unwrap()
+                .is_empty()
+        );
+    }
+}

@@ -2,10 +2,12 @@
 //! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
 //! data order, and the NaN guard.
 
+pub mod backend;
 pub mod checkpoint;
 pub mod history;
 
-pub use checkpoint::{Checkpoint, RunDir};
+pub use backend::BackendKind;
+pub use checkpoint::{Checkpoint, RunDir, TrainState};
 pub use history::{EpochRecord, History};
 
 use rand::SeedableRng;
@@ -30,6 +32,32 @@ pub fn batch_rng(seed: u64, epoch: usize, batch: usize) -> ChaCha8Rng {
             .wrapping_add(batch as u64)
             .wrapping_mul(0xD134_2543_DE82_EF95),
     )
+}
+
+/// Options of a training run given on the command line (they override the config).
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Output folder (default: the config's `out`).
+    pub out: Option<std::path::PathBuf>,
+    /// Continue from the last checkpoint in the output folder.
+    pub resume: bool,
+    pub backend: Option<BackendKind>,
+    pub epochs: Option<usize>,
+    /// Hide the progress bar (logs still print one line per epoch).
+    pub quiet: bool,
+}
+
+/// The `model = "..."` key that says which network a training config is for.
+pub fn config_model(toml_text: &str, path: &std::path::Path) -> crate::Result<String> {
+    let value: toml::Table =
+        toml::from_str(toml_text).map_err(|e| crate::camera::toml_error(path, toml_text, e))?;
+    match value.get("model").and_then(|v| v.as_str()) {
+        Some(m) => Ok(m.to_string()),
+        None => Err(crate::Error::invalid(
+            path,
+            "missing top-level `model = \"fpfdcnn\"` or `model = \"sdfcnn\"`",
+        )),
+    }
 }
 
 /// Stops training on a non-finite loss with a message that says what was kept.

@@ -1,9 +1,11 @@
 //! `train`: command-line entry point for the SDF-SLAM networks.
 //!
+//! `train --config FILE [--resume] [--out DIR] [--backend ndarray|flex] [--epochs N]` trains
+//! the network the config names (`model = "fpfdcnn"` or `"sdfcnn"`).
+//!
 //! `train summary fpfdcnn|sdfcnn` runs one forward pass on a zero image and prints each layer's
 //! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
-//! the trainable-parameter count. Training subcommands (driven by a `--config` file) are added
-//! as further [`Command`] variants.
+//! the trainable-parameter count.
 
 use anyhow::{Context, Result};
 use burn::prelude::*;
@@ -11,12 +13,40 @@ use clap::{Parser, Subcommand, ValueEnum};
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
 use sdf_slam::nn::{ShapeTrace, trainable_params};
 use sdf_slam::sdfcnn::SdfcnnConfig;
+use sdf_slam::training::{BackendKind, RunOptions, config_model};
+use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
 #[command(about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)")]
+#[command(args_conflicts_with_subcommands = true, arg_required_else_help = true)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+/// Training from a config file.
+#[derive(clap::Args, Debug)]
+struct RunArgs {
+    /// Training config (TOML), e.g. configs/fpfdcnn.toml.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Continue from the last checkpoint of the output folder.
+    #[arg(long)]
+    resume: bool,
+    /// Output folder (overrides the config's `out`).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Backend (overrides the config's `backend`).
+    #[arg(long, value_enum)]
+    backend: Option<BackendKind>,
+    /// Number of epochs (overrides the config's `epochs`).
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -36,8 +66,8 @@ struct SummaryArgs {
     #[arg(long, default_value_t = 640)]
     width: usize,
     /// Burn backend to run the forward pass on.
-    #[arg(long, value_enum, default_value_t = Backend::Ndarray)]
-    backend: Backend,
+    #[arg(long, value_enum, default_value_t = BackendKind::Ndarray)]
+    backend: BackendKind,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
@@ -48,28 +78,34 @@ enum Network {
     Sdfcnn,
 }
 
-#[derive(ValueEnum, Clone, Copy, Debug)]
-enum Backend {
-    /// burn-ndarray (CPU).
-    Ndarray,
-    /// burn-flex (pure-Rust CPU).
-    Flex,
-}
-
-impl Backend {
-    fn device(self) -> Device {
-        match self {
-            #[allow(deprecated)] // NdArray is the project's training backend.
-            Self::Ndarray => Device::ndarray(),
-            Self::Flex => Device::flex(),
-        }
-    }
-}
-
 fn main() -> Result<()> {
-    match Cli::parse().command {
-        Command::Summary(args) => summary(&args),
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Summary(args)) => summary(&args),
+        None => train(cli.run),
     }
+}
+
+fn train(args: RunArgs) -> Result<()> {
+    let Some(config) = args.config else {
+        anyhow::bail!("give a training config with --config FILE (see configs/), or a subcommand");
+    };
+    let text = sdf_slam::io::read_text(&config)?;
+    let opts = RunOptions {
+        out: args.out,
+        resume: args.resume,
+        backend: args.backend,
+        epochs: args.epochs,
+        quiet: args.quiet,
+    };
+    match config_model(&text, &config)?.as_str() {
+        "fpfdcnn" => sdf_slam::fpfdcnn::training::run(&config, &text, &opts)?,
+        other => anyhow::bail!(
+            "{}: unknown model '{other}' (fpfdcnn or sdfcnn)",
+            config.display()
+        ),
+    }
+    Ok(())
 }
 
 fn summary(args: &SummaryArgs) -> Result<()> {

@@ -1,5 +1,8 @@
 //! FPFDCNN, the keypoint detector/descriptor of SDF-SLAM (Section IV-B, Table 12).
 
+pub mod data;
+pub mod loss;
 mod model;
+pub mod training;
 
 pub use model::{Fpfdcnn, FpfdcnnConfig, FpfdcnnError, FpfdcnnOutput};

@@ -7,6 +7,6 @@ pub mod shuffle;
 pub mod trace;
 
 pub use params::trainable_params;
-pub use resize::{SampleError, resize_bilinear, sample_bilinear_at};
+pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};
 pub use shuffle::pixel_shuffle;
 pub use trace::ShapeTrace;

@@ -54,6 +54,24 @@ pub fn taps(dst: usize, input: usize, output: usize) -> Taps {
     }
 }
 
+/// Source taps of a continuous (sub-pixel) output coordinate `pos`, extending
+/// [`taps`] between pixel centres: at integer `pos` they agree (except when
+/// `input == output`, where [`taps`] is the identity and this interpolates too).
+pub fn taps_at(pos: f32, input: usize, output: usize) -> Taps {
+    assert!(input > 0 && output > 0, "bilinear resize of an empty axis");
+    let scale = input as f32 / output as f32;
+    let src = ((pos + 0.5) * scale - 0.5).clamp(0.0, (input - 1) as f32);
+    let i0 = (src as usize).min(input - 1);
+    let i1 = if i0 + 1 < input { i0 + 1 } else { i0 };
+    let w1 = (src - i0 as f32).clamp(0.0, 1.0);
+    Taps {
+        i0,
+        i1,
+        w0: 1.0 - w1,
+        w1,
+    }
+}
+
 /// Row-major `[output, input]` interpolation matrix of one axis.
 pub fn interpolation_matrix(input: usize, output: usize) -> Vec<f32> {
     let mut m = vec![0.0; output * input];

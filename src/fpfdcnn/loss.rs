@@ -1,0 +1,268 @@
+//! FPFDCNN training loss: the detector learns the Harris corners of each image
+//! (a per-pixel binary decision, the paper's "dichotomic problem" of Appendix A),
+//! the descriptors learn the ground-truth matches of eqs 5-7.
+//!
+//! * Detector: binary cross-entropy between the FP probability map and the
+//!   Harris target map, positives weighted by `pos_weight` because corners are
+//!   about 0.1 % of the pixels.
+//! * Descriptor: InfoNCE (contrastive, van den Oord et al. 2018) over the matched
+//!   points of each image pair, symmetric in A and B: the descriptor of a corner
+//!   in A must be nearer (cosine, temperature `tau`) to its partner in B than to
+//!   the partners of the other corners, which are the negatives the range matcher
+//!   has to reject. Partners closer than `exclusion_px` to the true one in B are
+//!   not used as negatives (their descriptors are bilinear blends of the same
+//!   16x16 cells, so the network cannot tell them apart).
+//!
+//! Descriptors are sampled from the coarse L10 map at the (sub-pixel) match
+//! positions with the bilinear weights of the FD layer, as a sparse matrix
+//! product, so the loss is differentiable on every backend.
+
+use crate::nn::taps_at;
+use burn::prelude::*;
+use burn::tensor::activation::log_softmax;
+use serde::{Deserialize, Serialize};
+
+/// Loss weights and settings (the `[loss]` table of a training config).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FpfdcnnLossConfig {
+    /// Weight of the detector BCE.
+    pub detector_weight: f64,
+    /// Weight of the descriptor InfoNCE.
+    pub descriptor_weight: f64,
+    /// Weight of positive (corner) pixels in the BCE.
+    pub pos_weight: f64,
+    /// InfoNCE temperature.
+    pub tau: f64,
+    /// Negatives closer than this to the positive (pixels, training resolution) are ignored.
+    pub exclusion_px: f32,
+    /// At most this many matches per pair enter the descriptor loss.
+    pub max_matches: usize,
+}
+
+impl Default for FpfdcnnLossConfig {
+    fn default() -> Self {
+        FpfdcnnLossConfig {
+            detector_weight: 1.0,
+            descriptor_weight: 1.0,
+            pos_weight: 100.0,
+            tau: 0.1,
+            exclusion_px: 8.0,
+            max_matches: 192,
+        }
+    }
+}
+
+/// Weighted binary cross-entropy of a probability map `[N, 1, H, W]` against a
+/// 0/1 target of the same shape, averaged with the weights.
+pub fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tensor<1> {
+    let eps = 1e-6;
+    let p = prob.clamp(eps, 1.0 - eps);
+    let weights = target.clone().mul_scalar(pos_weight - 1.0).add_scalar(1.0);
+    let ll = target.clone().mul(p.clone().log())
+        + target
+            .neg()
+            .add_scalar(1.0)
+            .mul(p.neg().add_scalar(1.0).log());
+    let total = weights.clone().sum();
+    ll.mul(weights).sum().neg().div(total)
+}
+
+/// The `[M, Hc·Wc]` matrix that samples a coarse map (of an image of
+/// `[height, width]` pixels) bilinearly at sub-pixel points `(x, y)`, as the FD
+/// layer followed by reading those pixels would.
+pub fn sampling_matrix(
+    points: &[[f32; 2]],
+    [hc, wc]: [usize; 2],
+    [height, width]: [usize; 2],
+) -> Vec<f32> {
+    let mut m = vec![0.0f32; points.len() * hc * wc];
+    for (k, p) in points.iter().enumerate() {
+        let tx = taps_at(p[0], wc, width);
+        let ty = taps_at(p[1], hc, height);
+        let row = &mut m[k * hc * wc..(k + 1) * hc * wc];
+        for (iy, wy) in [(ty.i0, ty.w0), (ty.i1, ty.w1)] {
+            for (ix, wx) in [(tx.i0, tx.w0), (tx.i1, tx.w1)] {
+                row[iy * wc + ix] += wy * wx;
+            }
+        }
+    }
+    m
+}
+
+/// L2-normalised descriptors of image `batch` of a coarse map `[N, D, Hc, Wc]`
+/// at the given points: `[M, D]`.
+pub fn sample_descriptors(
+    map: &Tensor<4>,
+    batch: usize,
+    points: &[[f32; 2]],
+    image: [usize; 2],
+) -> Tensor<2> {
+    let [_, d, hc, wc] = map.dims();
+    let device = map.device();
+    let s = Tensor::<2>::from_data(
+        TensorData::new(
+            sampling_matrix(points, [hc, wc], image),
+            [points.len(), hc * wc],
+        ),
+        &device,
+    );
+    let flat = map
+        .clone()
+        .slice(s![batch..batch + 1])
+        .reshape([d, hc * wc]);
+    let desc = s.matmul(flat.transpose());
+    let norm = desc
+        .clone()
+        .powf_scalar(2.0)
+        .sum_dim(1)
+        .sqrt()
+        .add_scalar(1e-8);
+    desc.div(norm)
+}
+
+/// Symmetric InfoNCE between matched descriptors `a[i] <-> b[i]` (`[M, D]`,
+/// normalised), ignoring negatives whose B points lie within `exclusion_px` of
+/// the positive's. Returns the loss and the share of points whose nearest
+/// descriptor (A to B) is their partner.
+pub fn descriptor_infonce(
+    a: Tensor<2>,
+    b: Tensor<2>,
+    points_b: &[[f32; 2]],
+    tau: f64,
+    exclusion_px: f32,
+) -> (Tensor<1>, f32) {
+    let m = points_b.len();
+    let device = a.device();
+    let sim = a.matmul(b.transpose()).div_scalar(tau);
+    // Additive mask: 0 where allowed, a large negative value for excluded negatives.
+    let mut mask = vec![0.0f32; m * m];
+    let r2 = exclusion_px * exclusion_px;
+    for i in 0..m {
+        for j in 0..m {
+            let (dx, dy) = (
+                points_b[i][0] - points_b[j][0],
+                points_b[i][1] - points_b[j][1],
+            );
+            if i != j && dx * dx + dy * dy < r2 {
+                mask[i * m + j] = -1e4;
+            }
+        }
+    }
+    let mask = Tensor::<2>::from_data(TensorData::new(mask, [m, m]), &device);
+    let logits = sim + mask;
+    let eye = Tensor::<2>::eye(m, &device);
+    let ab = log_softmax(logits.clone(), 1).mul(eye.clone()).sum();
+    let ba = log_softmax(logits.clone(), 0).mul(eye).sum();
+    let loss = (ab + ba).div_scalar(-2.0 * m as f64);
+    // Top-1 accuracy A -> B, on the host.
+    let acc = match logits
+        .argmax(1)
+        .into_data()
+        .convert::<i64>()
+        .try_to_vec::<i64>()
+    {
+        Ok(idx) => {
+            idx.iter()
+                .enumerate()
+                .filter(|(i, j)| **j == *i as i64)
+                .count() as f32
+                / m.max(1) as f32
+        }
+        Err(_) => 0.0,
+    };
+    (loss, acc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[allow(deprecated)]
+    fn device() -> Device {
+        Device::ndarray()
+    }
+
+    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data().try_to_vec::<f32>().unwrap()
+    }
+
+    #[test]
+    fn bce_matches_hand_computation() {
+        let d = device();
+        let prob = Tensor::<4>::from_data(
+            TensorData::new(vec![0.9f32, 0.2, 0.1, 0.5], [1, 1, 2, 2]),
+            &d,
+        );
+        let target = Tensor::<4>::from_data(
+            TensorData::new(vec![1.0f32, 0.0, 0.0, 0.0], [1, 1, 2, 2]),
+            &d,
+        );
+        let l = values(detector_bce(prob, target, 3.0))[0];
+        let expected = -(3.0 * 0.9f32.ln() + 0.8f32.ln() + 0.9f32.ln() + 0.5f32.ln()) / 6.0;
+        assert!((l - expected).abs() < 1e-5, "{l} vs {expected}");
+    }
+
+    #[test]
+    fn sampling_matrix_reproduces_bilinear_upsampling() {
+        // A 2x3 coarse map of an 8x12 image (cell 4): compare with sample_bilinear_at.
+        let map: Vec<f32> = (0..6).map(|v| v as f32 * 1.5 - 2.0).collect();
+        let pts = [(0usize, 0usize), (5, 3), (11, 7), (6, 4)];
+        let reference = crate::nn::sample_bilinear_at(&map, [1, 2, 3], [8, 12], &pts).unwrap();
+        let fpts: Vec<[f32; 2]> = pts.iter().map(|&(x, y)| [x as f32, y as f32]).collect();
+        let m = sampling_matrix(&fpts, [2, 3], [8, 12]);
+        for (k, r) in reference.iter().enumerate() {
+            let v: f32 = m[k * 6..(k + 1) * 6]
+                .iter()
+                .zip(&map)
+                .map(|(a, b)| a * b)
+                .sum();
+            assert!((v - r).abs() < 1e-6, "point {k}: {v} vs {r}");
+        }
+    }
+
+    #[test]
+    fn infonce_is_low_for_matching_and_high_for_shuffled_descriptors() {
+        let d = device();
+        let m = 6;
+        let raw: Vec<f32> = (0..m * 4).map(|i| ((i * 7919) % 13) as f32 - 6.0).collect();
+        let a = Tensor::<2>::from_data(TensorData::new(raw.clone(), [m, 4]), &d);
+        let norm = a.clone().powf_scalar(2.0).sum_dim(1).sqrt();
+        let a = a.div(norm);
+        let pts: Vec<[f32; 2]> = (0..m).map(|i| [i as f32 * 50.0, 0.0]).collect();
+        let (same, acc) = descriptor_infonce(a.clone(), a.clone(), &pts, 0.1, 8.0);
+        let shuffled = Tensor::cat(
+            vec![a.clone().slice(s![1..m]), a.clone().slice(s![0..1])],
+            0,
+        );
+        let (other, _) = descriptor_infonce(a, shuffled, &pts, 0.1, 8.0);
+        let (same, other) = (values(same)[0], values(other)[0]);
+        assert!(same < other, "{same} vs {other}");
+        assert!(acc > 0.99);
+    }
+
+    #[test]
+    fn losses_backpropagate_on_ndarray() {
+        let d = device().autodiff();
+        let map = Tensor::<4>::from_data(
+            TensorData::new(
+                (0..2 * 8 * 2 * 3)
+                    .map(|v| (v as f32 * 0.37).sin())
+                    .collect::<Vec<_>>(),
+                [2, 8, 2, 3],
+            ),
+            &d,
+        )
+        .require_grad();
+        let pa = [[3.0f32, 2.0], [40.0, 20.0], [20.5, 10.25]];
+        let pb = [[4.0f32, 2.5], [38.0, 21.0], [25.0, 9.0]];
+        let a = sample_descriptors(&map, 0, &pa, [32, 48]);
+        let b = sample_descriptors(&map, 1, &pb, [32, 48]);
+        let (loss, _) = descriptor_infonce(a, b, &pb, 0.1, 2.0);
+        let grads = loss.backward();
+        let g = map
+            .grad(&grads)
+            .expect("gradient reaches the descriptor map");
+        assert!(values(g).iter().any(|v| v.abs() > 0.0));
+    }
+}

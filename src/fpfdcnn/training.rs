@@ -1,0 +1,365 @@
+//! FPFDCNN trainer: `train --config configs/fpfdcnn*.toml`.
+//!
+//! Adam on the ndarray backend by default (flex selectable), seeded data order
+//! and augmentation, a progress bar, per-epoch metrics (`metrics.csv`,
+//! `loss.png`, `accuracy.png`), an atomic checkpoint per epoch with the config
+//! beside it, `--resume` from the last checkpoint (model, optimizer state,
+//! epoch, data order), and a stop with a clear message if the loss is NaN.
+
+use super::data::{FpBatch, FpDataConfig, FpDataset};
+use super::loss::{FpfdcnnLossConfig, descriptor_infonce, detector_bce, sample_descriptors};
+use super::model::{Fpfdcnn, FpfdcnnConfig};
+use crate::error::{Error, Result};
+use crate::training::{
+    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, epoch_order,
+};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::prelude::*;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A FPFDCNN training config (TOML).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FpfdcnnTrainConfig {
+    /// Always `"fpfdcnn"`.
+    pub model: String,
+    /// Run folder.
+    #[serde(default = "default_out")]
+    pub out: PathBuf,
+    #[serde(default)]
+    pub backend: BackendKind,
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    pub epochs: usize,
+    #[serde(default = "default_batch")]
+    pub batch_size: usize,
+    /// Training image size (divisible by 16).
+    #[serde(default = "default_height")]
+    pub height: usize,
+    #[serde(default = "default_width")]
+    pub width: usize,
+    /// Adam learning rate.
+    #[serde(default = "default_lr")]
+    pub lr: f64,
+    /// Learning-rate changes `[[epoch, lr], ...]`: from that (0-based) epoch on.
+    #[serde(default)]
+    pub lr_steps: Vec<(usize, f64)>,
+    /// At most this many pairs per epoch (0: all), drawn in the seeded order.
+    #[serde(default)]
+    pub pairs_per_epoch: usize,
+    #[serde(default)]
+    pub data: FpDataConfig,
+    #[serde(default)]
+    pub loss: FpfdcnnLossConfig,
+    /// Descriptor length (Table 12: 256).
+    #[serde(default = "default_dim")]
+    pub descriptor_dim: usize,
+}
+
+fn default_out() -> PathBuf {
+    PathBuf::from("runs/fpfdcnn")
+}
+fn default_seed() -> u64 {
+    42
+}
+fn default_batch() -> usize {
+    4
+}
+fn default_height() -> usize {
+    240
+}
+fn default_width() -> usize {
+    320
+}
+fn default_lr() -> f64 {
+    1e-3
+}
+fn default_dim() -> usize {
+    256
+}
+
+impl FpfdcnnTrainConfig {
+    /// Parses and checks a config; errors name the file and line.
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let cfg: Self =
+            toml::from_str(text).map_err(|e| crate::camera::toml_error(path, text, e))?;
+        let bad = |m: String| Err(Error::invalid(path, m));
+        if cfg.model != "fpfdcnn" {
+            return bad(format!("model = \"{}\" is not \"fpfdcnn\"", cfg.model));
+        }
+        if !cfg.height.is_multiple_of(16)
+            || !cfg.width.is_multiple_of(16)
+            || cfg.height == 0
+            || cfg.width == 0
+        {
+            return bad(format!(
+                "height x width {}x{} must be non-zero multiples of 16",
+                cfg.height, cfg.width
+            ));
+        }
+        if cfg.batch_size == 0 || cfg.epochs == 0 {
+            return bad("batch_size and epochs must be at least 1".into());
+        }
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(cfg.lr) || cfg.lr_steps.iter().any(|s| !positive(s.1)) {
+            return bad("learning rates must be positive".into());
+        }
+        Ok(cfg)
+    }
+
+    /// The network this config trains.
+    pub fn network(&self) -> FpfdcnnConfig {
+        FpfdcnnConfig::new().with_descriptor_dim(self.descriptor_dim)
+    }
+
+    /// Learning rate of a (0-based) epoch.
+    pub fn lr_at(&self, epoch: usize) -> f64 {
+        self.lr_steps
+            .iter()
+            .filter(|(e, _)| *e <= epoch)
+            .max_by_key(|(e, _)| *e)
+            .map(|s| s.1)
+            .unwrap_or(self.lr)
+    }
+}
+
+/// Loss terms of one batch.
+struct BatchLoss {
+    total: Tensor<1>,
+    detector: f64,
+    descriptor: f64,
+    accuracy: f64,
+}
+
+fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Result<BatchLoss> {
+    let size = [cfg.height, cfg.width];
+    let err = |e: super::FpfdcnnError| Error::msg(e.to_string());
+    let out_a = model.forward(batch.image_a).map_err(err)?;
+    let out_b = model.forward(batch.image_b).map_err(err)?;
+    let l = &cfg.loss;
+    let det = (detector_bce(out_a.prob, batch.target_a, l.pos_weight)
+        + detector_bce(out_b.prob, batch.target_b, l.pos_weight))
+    .div_scalar(2.0);
+    let mut desc_terms = Vec::new();
+    let mut acc = 0.0;
+    for (i, m) in batch.matches.iter().enumerate() {
+        let pa: Vec<[f32; 2]> = m.iter().map(|x| x.a).collect();
+        let pb: Vec<[f32; 2]> = m.iter().map(|x| x.b).collect();
+        let da = sample_descriptors(&out_a.descriptors, i, &pa, size);
+        let db = sample_descriptors(&out_b.descriptors, i, &pb, size);
+        let (t, a) = descriptor_infonce(da, db, &pb, l.tau, l.exclusion_px);
+        desc_terms.push(t);
+        acc += a as f64;
+    }
+    let n = desc_terms.len().max(1) as f64;
+    let desc = Tensor::cat(desc_terms, 0).sum().div_scalar(n);
+    let detector = det.clone().into_scalar::<f32>() as f64;
+    let descriptor = desc.clone().into_scalar::<f32>() as f64;
+    let total = det.mul_scalar(l.detector_weight) + desc.mul_scalar(l.descriptor_weight);
+    Ok(BatchLoss {
+        total,
+        detector,
+        descriptor,
+        accuracy: acc / n,
+    })
+}
+
+/// Trains FPFDCNN as the config says (see the module docs).
+pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<()> {
+    let mut cfg = FpfdcnnTrainConfig::parse(config_text, config_path)?;
+    if let Some(e) = opts.epochs {
+        cfg.epochs = e;
+    }
+    if let Some(b) = opts.backend {
+        cfg.backend = b;
+    }
+    if let Some(o) = &opts.out {
+        cfg.out = o.clone();
+    }
+    let saved_text = toml::to_string_pretty(&cfg).map_err(|e| Error::msg(e.to_string()))?;
+    let run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
+    let log = |m: &str| {
+        if !opts.quiet {
+            eprintln!("{m}")
+        }
+    };
+    log(&format!(
+        "FPFDCNN training on {} -> {}",
+        cfg.backend,
+        cfg.out.display()
+    ));
+    let (train, val) = FpDataset::build(&cfg.data, [cfg.height, cfg.width], |m| {
+        log(&format!("  data: {m}"))
+    })?;
+    log(&format!(
+        "  {} training pairs ({} frames), {} validation pairs, {}x{}",
+        train.pairs.len(),
+        train.frames.len(),
+        val.pairs.len(),
+        cfg.width,
+        cfg.height
+    ));
+
+    let device = cfg.backend.autodiff_device();
+    let mut model = cfg
+        .network()
+        .init(&device)
+        .map_err(|e| Error::msg(e.to_string()))?;
+    let mut optim = AdamConfig::new().init();
+    let mut state = TrainState::default();
+    if opts.resume {
+        let ckpt = run
+            .latest()?
+            .ok_or_else(|| Error::invalid(&run.root, "no checkpoint to resume"))?;
+        model = model.try_load_file(ckpt.model_path()).map_err(|e| {
+            Error::invalid(
+                ckpt.model_path(),
+                format!("does not fit the FPFDCNN of {}: {e}", config_path.display()),
+            )
+        })?;
+        optim = optim
+            .load(ckpt.optimizer_path())
+            .map_err(|e| Error::invalid(ckpt.optimizer_path(), e.to_string()))?;
+        state = ckpt.state;
+        log(&format!(
+            "  resumed after epoch {} ({})",
+            state.epoch,
+            ckpt.dir.display()
+        ));
+    }
+
+    for epoch in state.epoch..cfg.epochs {
+        let started = Instant::now();
+        let lr = cfg.lr_at(epoch);
+        let mut order = epoch_order(train.pairs.len(), cfg.seed, epoch);
+        if cfg.pairs_per_epoch > 0 {
+            order.truncate(cfg.pairs_per_epoch);
+        }
+        let batches: Vec<&[usize]> = order.chunks(cfg.batch_size).collect();
+        let bar = if opts.quiet {
+            ProgressBar::hidden()
+        } else {
+            ProgressBar::new(batches.len() as u64)
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})",
+            )
+            .map_err(|e| Error::msg(e.to_string()))?
+            .progress_chars("=> "),
+        );
+        bar.set_prefix(format!("{}/{}", epoch + 1, cfg.epochs));
+        let (mut sum, mut sum_det, mut sum_desc, mut sum_acc) = (0.0, 0.0, 0.0, 0.0);
+        for (bi, ids) in batches.iter().enumerate() {
+            let mut rng = batch_rng(cfg.seed, epoch, bi);
+            let batch = train.batch(
+                ids,
+                Some(&cfg.data.augment),
+                cfg.loss.max_matches,
+                &mut rng,
+                &device,
+            )?;
+            let l = batch_loss(&model, batch, &cfg)?;
+            let value = l.total.clone().into_scalar::<f32>() as f64;
+            check_finite(value, epoch, bi, &run)?;
+            let grads = GradientsParams::from_grads(l.total.backward(), &model);
+            model = optim.step(lr, model, grads);
+            state.step += 1;
+            sum += value;
+            sum_det += l.detector;
+            sum_desc += l.descriptor;
+            sum_acc += l.accuracy;
+            bar.inc(1);
+            bar.set_message(format!(
+                "loss {:.4} (det {:.4} desc {:.4})",
+                sum / (bi + 1) as f64,
+                sum_det / (bi + 1) as f64,
+                sum_desc / (bi + 1) as f64
+            ));
+        }
+        bar.finish_and_clear();
+        let nb = batches.len().max(1) as f64;
+        let mut values = BTreeMap::new();
+        values.insert("train_loss".to_string(), sum / nb);
+        values.insert("train_detector".to_string(), sum_det / nb);
+        values.insert("train_descriptor".to_string(), sum_desc / nb);
+        values.insert("train_desc_top1".to_string(), sum_acc / nb);
+        if !val.pairs.is_empty() {
+            let (vl, vd, vs, va) = validate(&model.valid(), &val, &cfg)?;
+            values.insert("val_loss".to_string(), vl);
+            values.insert("val_detector".to_string(), vd);
+            values.insert("val_descriptor".to_string(), vs);
+            values.insert("val_desc_top1".to_string(), va);
+        }
+        state.epoch = epoch + 1;
+        state.history.push(EpochRecord {
+            epoch: epoch + 1,
+            lr,
+            seconds: started.elapsed().as_secs_f64(),
+            values: values.clone(),
+        });
+        let ckpt = run.save(&state, &saved_text, |dir| {
+            model
+                .clone()
+                .save_file(dir.join("model.bpk"))
+                .map_err(|e| Error::invalid(dir.join("model.bpk"), e.to_string()))?;
+            optim
+                .save(dir.join("optimizer.bpk"))
+                .map_err(|e| Error::invalid(dir.join("optimizer.bpk"), e.to_string()))
+        })?;
+        state.history.write_csv(run.root.join("metrics.csv"))?;
+        state.history.plot(
+            run.root.join("loss.png"),
+            "FPFDCNN loss",
+            "loss",
+            &["loss", "detector", "descriptor"],
+            true,
+        )?;
+        state.history.plot(
+            run.root.join("accuracy.png"),
+            "descriptor top-1 match (within pair)",
+            "share",
+            &["top1"],
+            false,
+        )?;
+        let summary: Vec<String> = values.iter().map(|(k, v)| format!("{k} {v:.4}")).collect();
+        log(&format!(
+            "epoch {}/{} ({:.0} s, lr {lr}): {} -> {}",
+            epoch + 1,
+            cfg.epochs,
+            started.elapsed().as_secs_f64(),
+            summary.join(", "),
+            ckpt.dir.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Mean validation loss terms and descriptor top-1 accuracy, without augmentation.
+fn validate(
+    model: &Fpfdcnn,
+    val: &FpDataset,
+    cfg: &FpfdcnnTrainConfig,
+) -> Result<(f64, f64, f64, f64)> {
+    let device = cfg.backend.device();
+    let model = model.clone().to_device(&device);
+    let ids: Vec<usize> = (0..val.pairs.len()).collect();
+    let (mut l, mut d, mut s, mut a) = (0.0, 0.0, 0.0, 0.0);
+    let chunks: Vec<&[usize]> = ids.chunks(cfg.batch_size).collect();
+    for (bi, c) in chunks.iter().enumerate() {
+        let mut rng = batch_rng(cfg.seed, usize::MAX, bi);
+        let batch = val.batch(c, None, cfg.loss.max_matches, &mut rng, &device)?;
+        let r = batch_loss(&model, batch, cfg)?;
+        l += r.total.into_scalar::<f32>() as f64;
+        d += r.detector;
+        s += r.descriptor;
+        a += r.accuracy;
+    }
+    let n = chunks.len().max(1) as f64;
+    Ok((l / n, d / n, s / n, a / n))
+}

@@ -3,12 +3,14 @@
 //! ```text
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
+//! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT] [--json FILE]
 //! ```
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use sdf_slam::metrics::{self, Alignment, DeltaUnit, PoseError, Stats};
 use sdf_slam::plot;
+use sdf_slam::training::BackendKind;
 use sdf_slam::trajectory::Trajectory;
 use serde_json::json;
 use std::path::PathBuf;
@@ -40,6 +42,55 @@ enum Command {
         #[arg(long, default_value = "frames")]
         delta_unit: DeltaUnit,
     },
+    /// The paper's Tables 6 and 7: matching accuracy and relative-pose error of
+    /// ORB + BF and FPFDCNN + range matcher on clear and blurred frame pairs.
+    Matching(MatchingArgs),
+}
+
+#[derive(Args)]
+struct MatchingArgs {
+    /// TUM-layout sequence with depth and ground truth.
+    #[arg(long)]
+    sequence: PathBuf,
+    /// Camera: fr1, fr2, fr3 or a camera TOML file.
+    #[arg(long, default_value = "fr1")]
+    camera: String,
+    /// Frame gap of the pairs (i, i + gap).
+    #[arg(long, default_value_t = 5)]
+    gap: usize,
+    /// Number of pairs, spread evenly over the sequence.
+    #[arg(long, default_value_t = 100)]
+    pairs: usize,
+    /// Use frames from this index on.
+    #[arg(long, default_value_t = 0)]
+    first: usize,
+    /// Use frames before this index only.
+    #[arg(long)]
+    last: Option<usize>,
+    /// Degradation of both images for the blurred half, e.g. motion:9 (a 9-pixel horizontal motion blur).
+    #[arg(long)]
+    blur: Option<String>,
+    /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); without it only ORB runs.
+    #[arg(long)]
+    fpfdcnn: Option<PathBuf>,
+    /// Backend for FPFDCNN.
+    #[arg(long, value_enum, default_value_t = BackendKind::Ndarray)]
+    backend: BackendKind,
+    /// Range matcher window side, pixels (the paper: 140).
+    #[arg(long, default_value_t = 140.0)]
+    window: f32,
+    /// Keep only mutual nearest neighbours in the range matcher.
+    #[arg(long)]
+    mutual: bool,
+    /// Write the figures as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Write the tables as markdown.
+    #[arg(long)]
+    markdown: Option<PathBuf>,
+    /// Write a picture of the matches on the middle pair (green correct, red wrong).
+    #[arg(long)]
+    picture: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -107,9 +158,56 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
     t.stamps.iter().map(|s| s - t0).collect()
 }
 
+fn matching(a: MatchingArgs) -> Result<()> {
+    use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown};
+    use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
+    let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
+    let cam = sdf_slam::camera::Camera::load(&a.camera)?;
+    let detector = a
+        .fpfdcnn
+        .as_ref()
+        .map(|p| FpfdcnnDetector::load(p, a.backend, DetectorConfig::default()))
+        .transpose()?;
+    let mut cfg = MatchingEvalConfig {
+        gap: a.gap,
+        pairs: a.pairs,
+        first: a.first,
+        last: a.last,
+        blur: a
+            .blur
+            .as_deref()
+            .map(sdf_slam::dataset::photometric::Degradation::parse)
+            .transpose()?,
+        ..Default::default()
+    };
+    cfg.range.window = a.window;
+    cfg.range.mutual = a.mutual;
+    let bar = indicatif::ProgressBar::new(0);
+    let (report, picture) = evaluate(&seq, &cam, detector.as_ref(), &cfg, |k, n| {
+        bar.set_length(n as u64);
+        bar.set_position(k as u64);
+    })?;
+    bar.finish_and_clear();
+    let md = markdown(&report);
+    println!("{md}");
+    if let Some(p) = &a.markdown {
+        sdf_slam::io::write_atomic(p, md.as_bytes())?;
+        println!("wrote {}", p.display());
+    }
+    if let Some(p) = &a.json {
+        write_json(p, &serde_json::to_value(&report)?)?;
+    }
+    if let (Some(p), Some(img)) = (&a.picture, picture) {
+        sdf_slam::imageio::write_png_atomic(p, &image::DynamicImage::ImageRgb8(img))?;
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Matching(a) => matching(a)?,
         Command::Ate(a) => {
             let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
             let r = metrics::ape(&gt, &est, a.align, a.t_max_diff).context("ATE failed")?;

@@ -1,8 +1,11 @@
 //! FPFDCNN, the keypoint detector/descriptor of SDF-SLAM (Section IV-B, Table 12).
 
 pub mod data;
+pub mod evaluate;
+pub mod inference;
 pub mod loss;
 mod model;
 pub mod training;
 
+pub use inference::{DetectorConfig, Features, FpfdcnnDetector};
 pub use model::{Fpfdcnn, FpfdcnnConfig, FpfdcnnError, FpfdcnnOutput};

@@ -5,6 +5,7 @@ pub mod params;
 pub mod resize;
 pub mod shuffle;
 pub mod trace;
+pub mod weights;
 
 pub use params::trainable_params;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};

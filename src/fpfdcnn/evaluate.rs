@@ -1,0 +1,460 @@
+//! The paper's Tables 6 and 7 on a TUM-layout sequence: matching accuracy of
+//! ORB + brute-force matching and of FPFDCNN + the range matcher on clear and on
+//! motion-blurred frame pairs, and errT / errR (eqs 11-14) of the relative pose
+//! that PnP + RANSAC (eqs 9-10) recovers from each method's matches.
+//!
+//! A match is correct when the matched keypoint in B lies within 5 px of the
+//! ground-truth projection of its A keypoint (A's depth, the camera with its
+//! distortion, ground-truth poses interpolated at the image timestamps); matches
+//! whose A keypoint has no depth are not counted.
+
+use super::inference::{Features, FpfdcnnDetector};
+use crate::camera::Camera;
+use crate::dataset::photometric::Degradation;
+use crate::dataset::tum::{Frame, TumSequence};
+use crate::error::{Error, Result};
+use crate::features::bf_matcher::bf_match;
+use crate::features::orb::{OrbConfig, detect_and_compute, gray_from_f32};
+use crate::geometry::Pose;
+use crate::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, match_errors};
+use crate::metrics::{PoseError, PoseErrorSegment};
+use crate::pnp::{PnpConfig, solve_pnp_ransac};
+use crate::range_matcher::{RangeMatcherConfig, range_match};
+use crate::raster::GrayF32;
+use image::{GrayImage, Rgb, RgbImage};
+use nalgebra::Point2;
+use rand::SeedableRng;
+use serde::{Deserialize, Serialize};
+
+/// What to evaluate.
+#[derive(Debug, Clone)]
+pub struct MatchingEvalConfig {
+    /// Frame gap of the pairs `(i, i + gap)`.
+    pub gap: usize,
+    /// Number of pairs, spread evenly over the allowed frames.
+    pub pairs: usize,
+    /// Only frames `first..last` (exclusive) are used.
+    pub first: usize,
+    pub last: Option<usize>,
+    /// Degradation of both images for the "blurred" half (e.g. `motion:9`).
+    pub blur: Option<Degradation>,
+    pub orb: OrbConfig,
+    pub range: RangeMatcherConfig,
+    pub pnp: PnpConfig,
+}
+
+impl Default for MatchingEvalConfig {
+    fn default() -> Self {
+        MatchingEvalConfig {
+            gap: 5,
+            pairs: 100,
+            first: 0,
+            last: None,
+            blur: None,
+            orb: OrbConfig::default(),
+            range: RangeMatcherConfig::default(),
+            pnp: PnpConfig::default(),
+        }
+    }
+}
+
+/// Results of one method on one condition (clear or blurred).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct ConditionResult {
+    pub correct: usize,
+    pub matches: usize,
+    pub accuracy: f64,
+    /// errT (%) and errR (deg/m) pooled over the pairs whose PnP succeeded.
+    pub err_t_percent: Option<f64>,
+    pub err_r_deg_per_m: Option<f64>,
+    /// Mean rotation (deg) and translation (m) error of the PnP relative pose.
+    pub mean_rot_error_deg: Option<f64>,
+    pub mean_trans_error_m: Option<f64>,
+    pub pnp_failures: usize,
+    /// Mean keypoints per image.
+    pub keypoints: f64,
+}
+
+/// One method's results.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct MethodResult {
+    pub clean: ConditionResult,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blurred: Option<ConditionResult>,
+}
+
+/// The whole evaluation.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct MatchingReport {
+    pub sequence: String,
+    pub pairs: Vec<(usize, usize)>,
+    pub gap: usize,
+    pub blur: Option<String>,
+    pub orb_bf: MethodResult,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fpfdcnn_range: Option<MethodResult>,
+}
+
+#[derive(Default)]
+struct Acc {
+    acc: Vec<MatchingAccuracy>,
+    segs: Vec<PoseErrorSegment>,
+    rot: Vec<f64>,
+    trans: Vec<f64>,
+    failures: usize,
+    keypoints: usize,
+    images: usize,
+}
+
+impl Acc {
+    fn finish(self) -> ConditionResult {
+        let pooled = MatchingAccuracy::pool(&self.acc);
+        let pose = PoseError::pool(&self.segs).ok();
+        let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        ConditionResult {
+            correct: pooled.correct,
+            matches: pooled.matches,
+            accuracy: pooled.accuracy,
+            err_t_percent: pose.map(|p| p.err_t_percent),
+            err_r_deg_per_m: pose.map(|p| p.err_r_deg_per_m),
+            mean_rot_error_deg: mean(&self.rot),
+            mean_trans_error_m: mean(&self.trans),
+            pnp_failures: self.failures,
+            keypoints: self.keypoints as f64 / self.images.max(1) as f64,
+        }
+    }
+}
+
+/// Matches of one method on one image pair: `(pixel in A, pixel in B)`.
+pub type PixelMatches = Vec<(Point2<f64>, Point2<f64>)>;
+
+fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMatches, usize)> {
+    let fa = detect_and_compute(a, cfg)?;
+    let fb = detect_and_compute(b, cfg)?;
+    let m = bf_match(&fa.descriptors, &fb.descriptors, true)
+        .iter()
+        .map(|m| {
+            let (ka, kb) = (fa.keypoints[m.query], fb.keypoints[m.train]);
+            (
+                Point2::new(ka.x as f64, ka.y as f64),
+                Point2::new(kb.x as f64, kb.y as f64),
+            )
+        })
+        .collect();
+    Ok((m, fa.len() + fb.len()))
+}
+
+/// FPFDCNN keypoints of both images matched by the range matcher (eq 8).
+pub fn fpfdcnn_matches(
+    fa: &Features,
+    fb: &Features,
+    cfg: &RangeMatcherConfig,
+) -> Result<PixelMatches> {
+    let m = range_match(
+        &fa.points,
+        &fa.descriptors,
+        &fb.points,
+        &fb.descriptors,
+        fa.dim,
+        cfg,
+    )?;
+    Ok(m.iter()
+        .map(|m| {
+            let (pa, pb) = (fa.points[m.i], fb.points[m.j]);
+            (
+                Point2::new(pa[0] as f64, pa[1] as f64),
+                Point2::new(pb[0] as f64, pb[1] as f64),
+            )
+        })
+        .collect())
+}
+
+/// A frame pair with its ground truth, for scoring matches.
+struct PairGt<'a> {
+    a: &'a Frame,
+    pose_a: Pose,
+    pose_b: Pose,
+    cam: &'a Camera,
+    pnp: &'a PnpConfig,
+}
+
+fn score(acc: &mut Acc, matches: &PixelMatches, keypoints: usize, gt: &PairGt<'_>) -> Result<()> {
+    let PairGt {
+        a,
+        pose_a,
+        pose_b,
+        cam,
+        pnp,
+    } = gt;
+    let (pose_a, pose_b, cam) = (pose_a, pose_b, *cam);
+    let depth = a
+        .depth
+        .as_ref()
+        .ok_or_else(|| Error::msg(format!("frame {} has no depth", a.index)))?;
+    let errors = match_errors(matches, depth, cam, pose_a, pose_b)?;
+    let judged: Vec<f64> = errors.iter().flatten().copied().collect();
+    acc.acc.push(MatchingAccuracy::new(
+        judged.iter().filter(|e| **e <= CORRECT_MATCH_PX).count(),
+        judged.len(),
+    ));
+    acc.keypoints += keypoints;
+    acc.images += 2;
+    let (mut pts, mut px) = (Vec::new(), Vec::new());
+    for (pa, pb) in matches {
+        if let Some(z) = depth.at(pa.x, pa.y) {
+            pts.push(cam.back_project(pa, z as f64));
+            px.push(*pb);
+        }
+    }
+    // Camera A to camera B.
+    let gt = pose_b.inverse() * pose_a;
+    match solve_pnp_ransac(&pts, &px, cam, None, pnp) {
+        Ok(r) => {
+            acc.rot
+                .push((r.pose.inverse() * gt).rotation.angle().to_degrees());
+            acc.trans
+                .push((r.pose.translation.vector - gt.translation.vector).norm());
+            acc.segs.push(PoseErrorSegment::new(
+                &gt.inverse(),
+                &r.pose.inverse(),
+                None,
+            ));
+        }
+        Err(_) => acc.failures += 1,
+    }
+    Ok(())
+}
+
+/// The frame pairs the evaluation uses.
+pub fn select_pairs(n_frames: usize, cfg: &MatchingEvalConfig) -> Vec<(usize, usize)> {
+    let last = cfg.last.unwrap_or(n_frames).min(n_frames);
+    if last <= cfg.first + cfg.gap {
+        return Vec::new();
+    }
+    let candidates: Vec<usize> = (cfg.first..last - cfg.gap).collect();
+    let n = cfg.pairs.min(candidates.len()).max(1);
+    (0..n)
+        .map(|k| candidates[k * candidates.len() / n])
+        .map(|i| (i, i + cfg.gap))
+        .collect()
+}
+
+/// Runs the evaluation; `detector` is `None` for ORB only. `picture` receives
+/// the matches of the middle pair for drawing (like the paper's Figs. 7-8).
+pub fn evaluate(
+    seq: &TumSequence,
+    cam: &Camera,
+    detector: Option<&FpfdcnnDetector>,
+    cfg: &MatchingEvalConfig,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<(MatchingReport, Option<RgbImage>)> {
+    let pairs = select_pairs(seq.len(), cfg);
+    if pairs.is_empty() {
+        return Err(Error::msg(format!(
+            "{}: not enough frames for pairs {} apart",
+            seq.root.display(),
+            cfg.gap
+        )));
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let conditions = if cfg.blur.is_some() { 2 } else { 1 };
+    let mut orb: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
+    let mut net: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
+    let mut picture = None;
+    let mut used = Vec::new();
+    for (k, &(i, j)) in pairs.iter().enumerate() {
+        progress(k, pairs.len());
+        let (a, b) = (seq.load_frame(i)?, seq.load_frame(j)?);
+        let (Some(pose_a), Some(pose_b)) = (a.gt_pose, b.gt_pose) else {
+            continue;
+        };
+        if a.depth.is_none() {
+            continue;
+        }
+        used.push((i, j));
+        let clean = (GrayF32::from_rgb(&a.rgb), GrayF32::from_rgb(&b.rgb));
+        let pgt = PairGt {
+            a: &a,
+            pose_a,
+            pose_b,
+            cam,
+            pnp: &cfg.pnp,
+        };
+        let mut rows = Vec::new();
+        for c in 0..conditions {
+            let (ga, gb) = match (c, &cfg.blur) {
+                (1, Some(d)) => (
+                    gray_from_f32(&d.apply(&clean.0, &mut rng)),
+                    gray_from_f32(&d.apply(&clean.1, &mut rng)),
+                ),
+                _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
+            };
+            let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
+            score(&mut orb[c], &m, kp, &pgt)?;
+            let depth = a.depth.as_ref().ok_or_else(|| Error::msg("depth"))?;
+            let errs = match_errors(&m, depth, cam, &pose_a, &pose_b)?;
+            rows.push((
+                ga.clone(),
+                gb.clone(),
+                m,
+                errs,
+                if c == 0 {
+                    "ORB + BF"
+                } else {
+                    "ORB + BF, blurred"
+                },
+            ));
+            if let Some(det) = detector {
+                let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
+                let m = fpfdcnn_matches(&fa, &fb, &cfg.range)?;
+                score(&mut net[c], &m, fa.len() + fb.len(), &pgt)?;
+                let errs = match_errors(&m, depth, cam, &pose_a, &pose_b)?;
+                rows.push((
+                    ga,
+                    gb,
+                    m,
+                    errs,
+                    if c == 0 {
+                        "FPFDCNN + range"
+                    } else {
+                        "FPFDCNN + range, blurred"
+                    },
+                ));
+            }
+        }
+        if k == pairs.len() / 2 {
+            picture = Some(draw_matches(&rows));
+        }
+    }
+    progress(pairs.len(), pairs.len());
+    let finish = |mut v: Vec<Acc>| {
+        let blurred = (v.len() > 1).then(|| v.pop().map(Acc::finish).unwrap_or_default());
+        MethodResult {
+            clean: v.pop().map(Acc::finish).unwrap_or_default(),
+            blurred,
+        }
+    };
+    Ok((
+        MatchingReport {
+            sequence: seq.name(),
+            pairs: used,
+            gap: cfg.gap,
+            blur: cfg.blur.map(|d| format!("{d:?}")),
+            orb_bf: finish(orb),
+            fpfdcnn_range: detector.map(|_| finish(net)),
+        },
+        picture,
+    ))
+}
+
+type Row = (
+    GrayImage,
+    GrayImage,
+    PixelMatches,
+    Vec<Option<f64>>,
+    &'static str,
+);
+
+/// Rows of `A | B` with match lines: green correct, red wrong, grey unjudged.
+fn draw_matches(rows: &[Row]) -> RgbImage {
+    let (w, h) = rows
+        .first()
+        .map(|r| (r.0.width(), r.0.height()))
+        .unwrap_or((1, 1));
+    let mut img = RgbImage::new(2 * w, h * rows.len() as u32);
+    for (r, (a, b, m, errs, _)) in rows.iter().enumerate() {
+        let y0 = r as u32 * h;
+        for (x0, g) in [(0, a), (w, b)] {
+            for (x, y, p) in g.enumerate_pixels() {
+                let v = (p[0] as f32 * 0.8) as u8;
+                img.put_pixel(x0 + x, y0 + y, Rgb([v, v, v]));
+            }
+        }
+        for ((pa, pb), e) in m.iter().zip(errs) {
+            let color = match e {
+                Some(e) if *e <= CORRECT_MATCH_PX => Rgb([40, 220, 60]),
+                Some(_) => Rgb([240, 40, 40]),
+                None => Rgb([160, 160, 160]),
+            };
+            draw_line(
+                &mut img,
+                (pa.x, pa.y + y0 as f64),
+                (pb.x + w as f64, pb.y + y0 as f64),
+                color,
+            );
+        }
+    }
+    img
+}
+
+fn draw_line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>) {
+    let n = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for k in 0..=n {
+        let t = k as f64 / n as f64;
+        let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
+        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+            img.put_pixel(x as u32, y as u32, c);
+        }
+    }
+}
+
+/// The report as markdown tables shaped like the paper's Tables 6 and 7.
+pub fn markdown(r: &MatchingReport) -> String {
+    let mut s = format!(
+        "Sequence `{}`, {} pairs {} frames apart{}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image |\n|---|---|---|---|\n",
+        r.sequence,
+        r.pairs.len(),
+        r.gap,
+        r.blur
+            .as_ref()
+            .map(|b| format!(", blur {b} on both images"))
+            .unwrap_or_default()
+    );
+    let mut methods = vec![("ORB + BF matcher", &r.orb_bf)];
+    if let Some(f) = &r.fpfdcnn_range {
+        methods.push(("FPFDCNN + range matcher", f));
+    }
+    let row = |s: &mut String, scen: &str, name: &str, c: &ConditionResult| {
+        s.push_str(&format!(
+            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} |\n",
+            100.0 * c.accuracy,
+            c.correct,
+            c.matches,
+            c.keypoints
+        ));
+    };
+    for (name, m) in &methods {
+        row(&mut s, "Clear", name, &m.clean);
+    }
+    for (name, m) in &methods {
+        if let Some(b) = &m.blurred {
+            row(&mut s, "Blurred", name, b);
+        }
+    }
+    s.push_str("\n| Scenario | Method | errT (%) | errR (deg/m) | rotation error (deg) | translation error (mm) | PnP failures |\n|---|---|---|---|---|---|---|\n");
+    let f = |v: Option<f64>, k: f64, d: usize| {
+        v.map(|x| format!("{:.*}", d, x * k))
+            .unwrap_or_else(|| "-".into())
+    };
+    for (scen, blurred) in [("Clear", false), ("Blurred", true)] {
+        for (name, m) in &methods {
+            let c = if blurred {
+                match &m.blurred {
+                    Some(b) => b,
+                    None => continue,
+                }
+            } else {
+                &m.clean
+            };
+            s.push_str(&format!(
+                "| {scen} | {name} | {} | {} | {} | {} | {} |\n",
+                f(c.err_t_percent, 1.0, 2),
+                f(c.err_r_deg_per_m, 1.0, 4),
+                f(c.mean_rot_error_deg, 1.0, 3),
+                f(c.mean_trans_error_m, 1000.0, 1),
+                c.pnp_failures
+            ));
+        }
+    }
+    s
+}

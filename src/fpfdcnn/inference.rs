@@ -1,0 +1,268 @@
+//! FPFDCNN inference: an image in, the paper's `Out` matrix out (Table 12):
+//! `N` keypoints chosen from the FP probability map (threshold, non-maximum
+//! suppression, the top `K` = 500 as in the paper's experiments) and their
+//! L2-normalised 256-d descriptors, sampled from the coarse L10 map exactly as
+//! the bilinear FD layer would give them (FD_FP) without upsampling the whole
+//! 256-channel map.
+
+use super::model::Fpfdcnn;
+use super::training::FpfdcnnTrainConfig;
+use crate::error::{Error, Result};
+use crate::nn::weights::{load_into, resolve_checkpoint};
+use crate::training::BackendKind;
+use burn::prelude::*;
+use image::GrayImage;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Keypoint selection.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// Minimum keypoint probability.
+    pub threshold: f32,
+    /// Non-maximum suppression radius, pixels.
+    pub nms_radius: usize,
+    /// Keep the `top_k` most probable keypoints (0: all).
+    pub top_k: usize,
+    /// No keypoint closer than this to the image border, pixels.
+    pub border: usize,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            threshold: 0.015,
+            nms_radius: 4,
+            top_k: 500,
+            border: 4,
+        }
+    }
+}
+
+/// Keypoints and descriptors of one image.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Features {
+    /// `(x, y)` pixel positions.
+    pub points: Vec<[f32; 2]>,
+    /// FP probabilities.
+    pub scores: Vec<f32>,
+    /// `N x dim` row-major, L2-normalised.
+    pub descriptors: Vec<f32>,
+    pub dim: usize,
+}
+
+impl Features {
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Descriptor of keypoint `i`.
+    pub fn descriptor(&self, i: usize) -> &[f32] {
+        &self.descriptors[i * self.dim..(i + 1) * self.dim]
+    }
+
+    /// The paper's `Out`: `N x (2 + dim)`, each row `x, y, descriptor`.
+    pub fn out_matrix(&self) -> Vec<f32> {
+        let mut out = Vec::with_capacity(self.len() * (2 + self.dim));
+        for (i, p) in self.points.iter().enumerate() {
+            out.extend_from_slice(p);
+            out.extend_from_slice(self.descriptor(i));
+        }
+        out
+    }
+}
+
+/// Greedy non-maximum suppression on a probability map: candidates above
+/// `threshold` (away from the border) in decreasing order, each suppressing a
+/// `(2r+1)²` square around it; at most `top_k`.
+pub fn select_keypoints(
+    prob: &[f32],
+    width: usize,
+    height: usize,
+    cfg: &DetectorConfig,
+) -> Vec<(usize, usize, f32)> {
+    let b = cfg.border;
+    let mut cand: Vec<(f32, usize)> = Vec::new();
+    for y in b..height.saturating_sub(b) {
+        for x in b..width.saturating_sub(b) {
+            let p = prob[y * width + x];
+            if p >= cfg.threshold {
+                cand.push((p, y * width + x));
+            }
+        }
+    }
+    cand.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let mut suppressed = vec![false; width * height];
+    let r = cfg.nms_radius as isize;
+    let mut out = Vec::new();
+    for (p, i) in cand {
+        if suppressed[i] {
+            continue;
+        }
+        let (x, y) = (i % width, i / width);
+        out.push((x, y, p));
+        if cfg.top_k > 0 && out.len() == cfg.top_k {
+            break;
+        }
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (xx, yy) = (x as isize + dx, y as isize + dy);
+                if xx >= 0 && yy >= 0 && (xx as usize) < width && (yy as usize) < height {
+                    suppressed[yy as usize * width + xx as usize] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A loaded FPFDCNN ready to detect and describe keypoints.
+#[derive(Debug)]
+pub struct FpfdcnnDetector {
+    pub model: Fpfdcnn,
+    pub device: Device,
+    pub config: DetectorConfig,
+}
+
+impl FpfdcnnDetector {
+    pub fn new(model: Fpfdcnn, device: Device, config: DetectorConfig) -> Self {
+        FpfdcnnDetector {
+            model,
+            device,
+            config,
+        }
+    }
+
+    /// Loads a checkpoint (a `model.bpk`, its folder, or a run folder) with the
+    /// training config beside it.
+    pub fn load(checkpoint: &Path, backend: BackendKind, config: DetectorConfig) -> Result<Self> {
+        let (weights, cfg_path) = resolve_checkpoint(checkpoint)?;
+        let text = crate::io::read_text(&cfg_path)?;
+        let train = FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
+        let device = backend.device();
+        let model = train
+            .network()
+            .init(&device)
+            .map_err(|e| Error::invalid(&cfg_path, e.to_string()))?;
+        let model = load_into(model, &weights, "FPFDCNN", &cfg_path)?;
+        Ok(Self::new(model, device, config))
+    }
+
+    /// Detects and describes keypoints of a grayscale image. Images whose sides
+    /// are not multiples of 16 are zero-padded on the right and bottom; no
+    /// keypoint is taken from the padding.
+    pub fn detect(&self, gray: &GrayImage) -> Result<Features> {
+        let (w, h) = (gray.width() as usize, gray.height() as usize);
+        if w < 16 || h < 16 {
+            return Err(Error::msg(format!(
+                "image {w}x{h} is too small for FPFDCNN (at least 16x16)"
+            )));
+        }
+        let cell = self.model.cell();
+        let (wp, hp) = (w.div_ceil(cell) * cell, h.div_ceil(cell) * cell);
+        let mut data = vec![0.0f32; wp * hp];
+        for (y, row) in gray.as_raw().chunks_exact(w).enumerate() {
+            for (x, &v) in row.iter().enumerate() {
+                data[y * wp + x] = v as f32 / 255.0;
+            }
+        }
+        let input = Tensor::<4>::from_data(TensorData::new(data, [1, 1, hp, wp]), &self.device);
+        let out = self
+            .model
+            .forward(input)
+            .map_err(|e| Error::msg(e.to_string()))?;
+        let prob = out
+            .prob
+            .into_data()
+            .try_to_vec::<f32>()
+            .map_err(|e| Error::msg(format!("reading FP map: {e:?}")))?;
+        // Keypoints inside the original image only.
+        let mut cropped = vec![0.0f32; w * h];
+        for y in 0..h {
+            cropped[y * w..(y + 1) * w].copy_from_slice(&prob[y * wp..y * wp + w]);
+        }
+        let picks = select_keypoints(&cropped, w, h, &self.config);
+        let points: Vec<(usize, usize)> = picks.iter().map(|p| (p.0, p.1)).collect();
+        let dim = out.descriptors.dims()[1];
+        let mut descriptors = Vec::with_capacity(points.len() * dim);
+        if !points.is_empty() {
+            let d = self
+                .model
+                .descriptors_at(&out.descriptors, 0, [hp, wp], &points)
+                .map_err(|e| Error::msg(e.to_string()))?;
+            for v in d {
+                let n = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+                descriptors.extend(v.iter().map(|x| x / n));
+            }
+        }
+        Ok(Features {
+            points: points.iter().map(|&(x, y)| [x as f32, y as f32]).collect(),
+            scores: picks.iter().map(|p| p.2).collect(),
+            descriptors,
+            dim,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nms_keeps_the_strongest_and_respects_radius_border_and_top_k() {
+        let (w, h) = (20, 10);
+        let mut p = vec![0.0f32; w * h];
+        p[5 * w + 5] = 0.9;
+        p[5 * w + 6] = 0.8; // suppressed by its neighbour
+        p[5 * w + 12] = 0.7;
+        p[w + 1] = 0.95; // in the border
+        p[8 * w + 16] = 0.01; // under the threshold
+        let cfg = DetectorConfig {
+            threshold: 0.015,
+            nms_radius: 2,
+            top_k: 0,
+            border: 2,
+        };
+        let k = select_keypoints(&p, w, h, &cfg);
+        assert_eq!(k, vec![(5, 5, 0.9), (12, 5, 0.7)]);
+        let k = select_keypoints(&p, w, h, &DetectorConfig { top_k: 1, ..cfg });
+        assert_eq!(k.len(), 1);
+    }
+
+    #[test]
+    fn detect_pads_odd_sizes_and_normalises_descriptors() {
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let model = super::super::FpfdcnnConfig::new()
+            .with_descriptor_dim(16)
+            .init(&device)
+            .unwrap();
+        let det = FpfdcnnDetector::new(
+            model,
+            device,
+            DetectorConfig {
+                threshold: 0.0,
+                top_k: 20,
+                ..Default::default()
+            },
+        );
+        let img = GrayImage::from_fn(50, 37, |x, y| {
+            image::Luma([((x * 37 + y * 11) % 255) as u8])
+        });
+        let f = det.detect(&img).unwrap();
+        assert_eq!(f.len(), 20);
+        assert_eq!(f.out_matrix().len(), 20 * 18);
+        for i in 0..f.len() {
+            let [x, y] = f.points[i];
+            assert!(x < 50.0 && y < 37.0);
+            let n: f32 = f.descriptor(i).iter().map(|v| v * v).sum();
+            assert!((n - 1.0).abs() < 1e-4);
+        }
+        assert!(det.detect(&GrayImage::new(8, 8)).is_err());
+    }
+}

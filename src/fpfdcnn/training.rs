@@ -206,6 +206,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     ));
 
     let device = cfg.backend.autodiff_device();
+    device.seed(cfg.seed);
     let mut model = cfg
         .network()
         .init(&device)

@@ -15,6 +15,7 @@ use crate::training::{
 };
 use burn::module::Module;
 use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::grad_clipping::GradientClippingConfig;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -49,6 +50,9 @@ pub struct FpfdcnnTrainConfig {
     /// Learning-rate changes `[[epoch, lr], ...]`: from that (0-based) epoch on.
     #[serde(default)]
     pub lr_steps: Vec<(usize, f64)>,
+    /// Gradient clipping by norm (per parameter tensor); 0 disables it.
+    #[serde(default = "default_clip")]
+    pub grad_clip_norm: f64,
     /// At most this many pairs per epoch (0: all), drawn in the seeded order.
     #[serde(default)]
     pub pairs_per_epoch: usize,
@@ -78,6 +82,9 @@ fn default_width() -> usize {
 }
 fn default_lr() -> f64 {
     1e-3
+}
+fn default_clip() -> f64 {
+    1.0
 }
 fn default_dim() -> usize {
     256
@@ -211,7 +218,11 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         .network()
         .init(&device)
         .map_err(|e| Error::msg(e.to_string()))?;
-    let mut optim = AdamConfig::new().init();
+    let mut adam = AdamConfig::new();
+    if cfg.grad_clip_norm > 0.0 {
+        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.grad_clip_norm as f32)));
+    }
+    let mut optim = adam.init();
     let mut state = TrainState::default();
     if opts.resume {
         let ckpt = run

@@ -76,6 +76,9 @@ struct MatchingArgs {
     /// Backend for FPFDCNN.
     #[arg(long, value_enum, default_value_t = BackendKind::Ndarray)]
     backend: BackendKind,
+    /// Resize images by this factor before FPFDCNN (0.5 for a network trained at 240x320).
+    #[arg(long, default_value_t = 1.0)]
+    fpfdcnn_scale: f32,
     /// Range matcher window side, pixels (the paper: 140).
     #[arg(long, default_value_t = 140.0)]
     window: f32,
@@ -166,7 +169,13 @@ fn matching(a: MatchingArgs) -> Result<()> {
     let detector = a
         .fpfdcnn
         .as_ref()
-        .map(|p| FpfdcnnDetector::load(p, a.backend, DetectorConfig::default()))
+        .map(|p| {
+            let cfg = DetectorConfig {
+                input_scale: a.fpfdcnn_scale,
+                ..Default::default()
+            };
+            FpfdcnnDetector::load(p, a.backend, cfg)
+        })
         .transpose()?;
     let mut cfg = MatchingEvalConfig {
         gap: a.gap,

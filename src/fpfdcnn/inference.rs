@@ -27,6 +27,10 @@ pub struct DetectorConfig {
     pub top_k: usize,
     /// No keypoint closer than this to the image border, pixels.
     pub border: usize,
+    /// The image is resized by this factor before the network (e.g. 0.5 for a
+    /// network trained at 240x320 on 480x640 frames); keypoints are reported
+    /// in the original image's pixels.
+    pub input_scale: f32,
 }
 
 impl Default for DetectorConfig {
@@ -36,6 +40,7 @@ impl Default for DetectorConfig {
             nms_radius: 4,
             top_k: 500,
             border: 4,
+            input_scale: 1.0,
         }
     }
 }
@@ -157,6 +162,33 @@ impl FpfdcnnDetector {
     /// are not multiples of 16 are zero-padded on the right and bottom; no
     /// keypoint is taken from the padding.
     pub fn detect(&self, gray: &GrayImage) -> Result<Features> {
+        let s = self.config.input_scale;
+        if !(s > 0.0 && s <= 4.0) {
+            return Err(Error::msg(format!(
+                "detector input_scale {s} must be in (0, 4]"
+            )));
+        }
+        if s == 1.0 {
+            return self.detect_at_native(gray);
+        }
+        let (w0, h0) = (gray.width(), gray.height());
+        let (w, h) = (
+            ((w0 as f32) * s).round().max(1.0) as u32,
+            ((h0 as f32) * s).round().max(1.0) as u32,
+        );
+        let small = image::imageops::resize(gray, w, h, image::imageops::FilterType::Triangle);
+        let mut f = self.detect_at_native(&small)?;
+        let (sx, sy) = (w0 as f32 / w as f32, h0 as f32 / h as f32);
+        for p in f.points.iter_mut() {
+            *p = [
+                ((p[0] + 0.5) * sx - 0.5).clamp(0.0, (w0 - 1) as f32),
+                ((p[1] + 0.5) * sy - 0.5).clamp(0.0, (h0 - 1) as f32),
+            ];
+        }
+        Ok(f)
+    }
+
+    fn detect_at_native(&self, gray: &GrayImage) -> Result<Features> {
         let (w, h) = (gray.width() as usize, gray.height() as usize);
         if w < 16 || h < 16 {
             return Err(Error::msg(format!(
@@ -196,7 +228,15 @@ impl FpfdcnnDetector {
                 .descriptors_at(&out.descriptors, 0, [hp, wp], &points)
                 .map_err(|e| Error::msg(e.to_string()))?;
             for v in d {
-                let n = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(1e-12);
+                // Scale first so that squaring cannot overflow.
+                let peak = v.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-30);
+                let n = v
+                    .iter()
+                    .map(|x| (x / peak).powi(2))
+                    .sum::<f32>()
+                    .sqrt()
+                    .max(1e-12)
+                    * peak;
                 descriptors.extend(v.iter().map(|x| x / n));
             }
         }

@@ -112,13 +112,22 @@ pub fn sample_descriptors(
         .slice(s![batch..batch + 1])
         .reshape([d, hc * wc]);
     let desc = s.matmul(flat.transpose());
-    let norm = desc
+    l2_normalize(desc)
+}
+
+/// Row-wise L2 normalisation that cannot overflow: rows are first divided by
+/// their largest magnitude (InfoNCE leaves the raw descriptor length free, and
+/// squaring long vectors in f32 would give infinities).
+pub fn l2_normalize(x: Tensor<2>) -> Tensor<2> {
+    let peak = x.clone().abs().max_dim(1).add_scalar(1e-12);
+    let x = x.div(peak);
+    let norm = x
         .clone()
         .powf_scalar(2.0)
         .sum_dim(1)
         .sqrt()
-        .add_scalar(1e-8);
-    desc.div(norm)
+        .add_scalar(1e-12);
+    x.div(norm)
 }
 
 /// Symmetric InfoNCE between matched descriptors `a[i] <-> b[i]` (`[M, D]`,

@@ -12,10 +12,11 @@ use super::model::{Fpfdcnn, FpfdcnnConfig};
 use crate::error::{Error, Result};
 use crate::training::{
     BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, epoch_order,
+    non_finite_grads,
 };
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
 use burn::optim::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -220,7 +221,9 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         .map_err(|e| Error::msg(e.to_string()))?;
     let mut adam = AdamConfig::new();
     if cfg.grad_clip_norm > 0.0 {
-        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.grad_clip_norm as f32)));
+        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(
+            cfg.grad_clip_norm as f32,
+        )));
     }
     let mut optim = adam.init();
     let mut state = TrainState::default();
@@ -267,6 +270,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         );
         bar.set_prefix(format!("{}/{}", epoch + 1, cfg.epochs));
         let (mut sum, mut sum_det, mut sum_desc, mut sum_acc) = (0.0, 0.0, 0.0, 0.0);
+        let mut skipped = 0usize;
         for (bi, ids) in batches.iter().enumerate() {
             let mut rng = batch_rng(cfg.seed, epoch, bi);
             let batch = train.batch(
@@ -280,6 +284,26 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             let value = l.total.clone().into_scalar::<f32>() as f64;
             check_finite(value, epoch, bi, &run)?;
             let grads = GradientsParams::from_grads(l.total.backward(), &model);
+            let bad = non_finite_grads(&model, &grads);
+            if !bad.is_empty() {
+                // A rare batch can give infinite gradients (a saturated sigmoid, a
+                // degenerate descriptor); skipping it keeps the weights finite.
+                skipped += 1;
+                bar.suspend(|| {
+                    eprintln!(
+                        "epoch {} batch {bi}: non-finite gradients in {} parameter tensors (shapes {:?}), step skipped",
+                        epoch + 1,
+                        bad.len(),
+                        &bad[..bad.len().min(3)]
+                    )
+                });
+                if skipped >= 10 {
+                    check_finite(f64::NAN, epoch, bi, &run)?;
+                }
+                bar.inc(1);
+                continue;
+            }
+            skipped = 0;
             model = optim.step(lr, model, grads);
             state.step += 1;
             sum += value;

@@ -60,6 +60,36 @@ pub fn config_model(toml_text: &str, path: &std::path::Path) -> crate::Result<St
     }
 }
 
+/// Shapes of the parameters whose gradient holds a NaN or an infinity.
+pub fn non_finite_grads<M: burn::module::Module>(
+    module: &M,
+    grads: &burn::optim::GradientsParams,
+) -> Vec<Vec<usize>> {
+    struct Check<'a> {
+        grads: &'a burn::optim::GradientsParams,
+        bad: Vec<Vec<usize>>,
+    }
+    impl burn::module::ModuleVisitor for Check<'_> {
+        fn visit_float<const D: usize>(
+            &mut self,
+            param: &burn::module::Param<burn::prelude::Tensor<D>>,
+        ) {
+            if let Some(g) = self.grads.get::<D>(param.id) {
+                let total = g.clone().sum().into_scalar::<f32>();
+                if !total.is_finite() {
+                    self.bad.push(g.dims().to_vec());
+                }
+            }
+        }
+    }
+    let mut check = Check {
+        grads,
+        bad: Vec::new(),
+    };
+    module.visit(&mut check);
+    check.bad
+}
+
 /// Stops training on a non-finite loss with a message that says what was kept.
 pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crate::Result<()> {
     if loss.is_finite() {

@@ -267,6 +267,7 @@ mod tests {
             nms_radius: 2,
             top_k: 0,
             border: 2,
+            input_scale: 1.0,
         };
         let k = select_keypoints(&p, w, h, &cfg);
         assert_eq!(k, vec![(5, 5, 0.9), (12, 5, 0.7)]);

@@ -13,9 +13,9 @@
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
-use burn::tensor::activation::{elu, sigmoid};
+use burn::tensor::activation::sigmoid;
 
-use crate::nn::{SampleError, ShapeTrace, pixel_shuffle, resize_bilinear, sample_bilinear_at};
+use crate::nn::{SampleError, ShapeTrace, elu, pixel_shuffle, resize_bilinear, sample_bilinear_at};
 
 /// ELU slope of the negative part (Table 12, footnote 1: `a(eˣ − 1)`, `a = 1`).
 const ELU_ALPHA: f64 = 1.0;

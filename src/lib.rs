@@ -6,9 +6,11 @@
 //!
 //! Foundation modules: [`camera`] (pinhole + Brown-Conrady), [`geometry`]
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
-//! sequences), [`metrics`] (ATE/RPE as evo computes them, errT/errR), [`plot`].
+//! sequences), [`metrics`] (ATE/RPE as evo computes them, errT/errR), [`plot`],
+//! [`classes`] (NYU40 names and palette), [`synth`] (synthetic indoor RGB-D data).
 
 pub mod camera;
+pub mod classes;
 pub mod dataset;
 pub mod error;
 pub mod features;
@@ -18,6 +20,7 @@ pub mod io;
 pub mod metrics;
 pub mod plot;
 pub mod raster;
+pub mod synth;
 pub mod trajectory;
 
 pub use error::{Error, Result};

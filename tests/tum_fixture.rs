@@ -251,7 +251,15 @@ fn shipped_camera_files_equal_the_presets() {
     for name in ["fr1", "fr2", "fr3"] {
         let file = Camera::from_file(format!("configs/cameras/{name}.toml")).unwrap();
         assert_eq!(file, Camera::preset(name).unwrap(), "{name}");
-        assert_eq!(Camera::load(&format!("configs/cameras/{name}.toml")).unwrap(), file);
+        assert_eq!(
+            Camera::load(&format!("configs/cameras/{name}.toml")).unwrap(),
+            file
+        );
     }
-    assert!(Camera::load("fr9").unwrap_err().to_string().contains("unknown camera"));
+    assert!(
+        Camera::load("fr9")
+            .unwrap_err()
+            .to_string()
+            .contains("unknown camera")
+    );
 }

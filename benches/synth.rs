@@ -100,7 +100,7 @@ fn main() {
         let (t, c0) = (Instant::now(), cpu_seconds());
         let mut bytes = 0usize;
         for (k, &tk) in times.iter().enumerate() {
-            let (f, _) = synth::render_frame(&renderer, &motion, &cfg, tk, k as u32);
+            let (f, _, _) = synth::render_frame(&renderer, &motion, &cfg, tk, k as u32, None);
             bytes += png(DynamicImage::ImageRgb8(f.rgb));
             bytes += png(DynamicImage::ImageLuma8(f.labels));
             for d in [Some(f.depth), f.depth_gt].into_iter().flatten() {
@@ -121,7 +121,7 @@ fn main() {
         let n = (frames / 6).max(2);
         let (t, c0) = (Instant::now(), cpu_seconds());
         for (k, &tk) in times.iter().take(n).enumerate() {
-            let _ = synth::render_frame(&renderer, &motion, &blur, tk, k as u32);
+            let _ = synth::render_frame(&renderer, &motion, &blur, tk, k as u32, None);
         }
         let blur_fps = rate(n, t, c0);
         println!(

@@ -66,6 +66,8 @@ pub struct Group {
     pub solids: Vec<Solid>,
     /// Points a camera may look at.
     pub interest: Vec<V3>,
+    /// Points with much to see (desks, shelves, beds...): preferred targets.
+    pub focus: Vec<V3>,
     /// Lamp light positions.
     pub lamps: Vec<V3>,
     /// Extra space to keep free (door swing), local bounds.
@@ -147,6 +149,7 @@ pub struct Builder<'a> {
     solids: Vec<Solid>,
     occupied: Vec<(V3, V3)>,
     interest: Vec<V3>,
+    focus: Vec<V3>,
     lamps: Vec<V3>,
 }
 
@@ -172,6 +175,7 @@ impl<'a> Builder<'a> {
             solids: Vec::new(),
             occupied,
             interest: Vec::new(),
+            focus: Vec::new(),
             lamps: Vec::new(),
         }
     }
@@ -210,9 +214,15 @@ impl<'a> Builder<'a> {
         self.solids.push(s);
     }
 
-    /// Shell solids, other solids, points of interest and lamp positions.
-    pub fn finish(self) -> (Vec<Solid>, Vec<Solid>, Vec<V3>, Vec<V3>) {
-        (self.shell, self.solids, self.interest, self.lamps)
+    /// Shell solids, other solids, points of interest, focus points and lamp positions.
+    pub fn finish(self) -> (Vec<Solid>, Vec<Solid>, Vec<V3>, Vec<V3>, Vec<V3>) {
+        (
+            self.shell,
+            self.solids,
+            self.interest,
+            self.focus,
+            self.lamps,
+        )
     }
 
     fn commit(&mut self, g: Group, p: &Place) -> bool {
@@ -246,7 +256,9 @@ impl<'a> Builder<'a> {
             self.occupied.extend(boxes);
         }
         self.solids.extend(world);
-        self.interest.extend(g.interest.iter().map(|&v| p.world(v)));
+        self.interest
+            .extend(g.interest.iter().chain(&g.focus).map(|&v| p.world(v)));
+        self.focus.extend(g.focus.iter().map(|&v| p.world(v)));
         self.lamps.extend(g.lamps.iter().map(|&v| p.world(v)));
         true
     }
@@ -762,7 +774,7 @@ pub fn door(b: &mut Builder) -> Group {
         s,
     );
     g.reserve = Some((V3::new(-w * 0.5, 0.0, 0.0), V3::new(w * 0.5, w + 0.1, h)));
-    g.interest.push(V3::new(0.0, 0.05, 1.2));
+    g.interest.push(V3::new(0.0, 0.05, 1.5));
     g
 }
 
@@ -984,8 +996,8 @@ pub fn bookshelf(b: &mut Builder) -> Group {
             );
         }
     }
-    g.interest.push(V3::new(0.0, y0 + d, h * 0.55));
-    g.interest.push(V3::new(0.0, y0 + d, h * 0.3));
+    g.focus.push(V3::new(0.0, y0 + d, h * 0.55));
+    g.focus.push(V3::new(0.0, y0 + d, h * 0.3));
     g
 }
 
@@ -1056,7 +1068,7 @@ pub fn shelves(b: &mut Builder) -> Group {
             }
         }
     }
-    g.interest.push(V3::new(0.0, y0 + d, h * 0.5));
+    g.focus.push(V3::new(0.0, y0 + d, h * 0.5));
     g
 }
 
@@ -1165,7 +1177,7 @@ pub fn dresser(b: &mut Builder) -> Group {
     }
     let n = b.rng.random_range(1..4);
     props(b, &mut g, -w * 0.5, w * 0.5, 0.02, 0.02 + d, h, n);
-    g.interest.push(V3::new(0.0, 0.02 + d, h));
+    g.focus.push(V3::new(0.0, 0.02 + d, h));
     g
 }
 
@@ -1324,8 +1336,8 @@ pub fn desk(b: &mut Builder) -> Group {
             s,
         );
     }
-    g.interest.push(V3::new(0.0, y0 + d * 0.5, h + 0.1));
-    g.interest.push(V3::new(0.0, y0 + 0.2, h + 0.3));
+    g.focus.push(V3::new(0.0, y0 + d * 0.5, h + 0.1));
+    g.focus.push(V3::new(0.0, y0 + 0.2, h + 0.3));
     g
 }
 
@@ -1446,8 +1458,8 @@ pub fn bed(b: &mut Builder) -> Group {
             table_lamp(b, &mut g, x, y0 + 0.18, 0.56);
         }
     }
-    g.interest.push(V3::new(0.0, y0 + l * 0.5, 0.6));
-    g.interest.push(V3::new(0.0, y0 + 0.3, 0.7));
+    g.focus.push(V3::new(0.0, y0 + l * 0.5, 0.6));
+    g.focus.push(V3::new(0.0, y0 + 0.3, 0.7));
     g
 }
 
@@ -1509,7 +1521,7 @@ fn couch(b: &mut Builder, lab: u8, w: f32) -> Group {
             s,
         );
     }
-    g.interest.push(V3::new(0.0, y0 + d * 0.5, 0.5));
+    g.focus.push(V3::new(0.0, y0 + d * 0.5, 0.5));
     g
 }
 
@@ -1581,7 +1593,7 @@ pub fn tv_stand(b: &mut Builder) -> Group {
     );
     let x = w * 0.5 - 0.15;
     props(b, &mut g, x - 0.12, x + 0.12, 0.02, 0.02 + d, h, 1);
-    g.interest.push(V3::new(0.0, 0.25, h + 0.08 + th * 0.5));
+    g.focus.push(V3::new(0.0, 0.25, h + 0.08 + th * 0.5));
     g
 }
 
@@ -1789,7 +1801,7 @@ pub fn counter(b: &mut Builder) -> Group {
             );
         }
     }
-    g.interest.push(V3::new(0.0, 0.02 + d, h));
+    g.focus.push(V3::new(0.0, 0.02 + d, h));
     g
 }
 
@@ -1868,7 +1880,7 @@ pub fn dining_table(b: &mut Builder) -> Group {
     }
     let n = 1 + (b.clutter * 3.0) as usize;
     props(b, &mut g, -w * 0.5, w * 0.5, -d * 0.5, d * 0.5, h, n);
-    g.interest.push(V3::new(0.0, 0.0, h));
+    g.focus.push(V3::new(0.0, 0.0, h));
     g
 }
 
@@ -1902,7 +1914,7 @@ pub fn coffee_table(b: &mut Builder) -> Group {
     }
     let n = b.rng.random_range(1..4);
     props(b, &mut g, -w * 0.5, w * 0.5, -d * 0.5, d * 0.5, h, n);
-    g.interest.push(V3::new(0.0, 0.0, h));
+    g.focus.push(V3::new(0.0, 0.0, h));
     g
 }
 

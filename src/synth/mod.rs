@@ -48,6 +48,9 @@ pub mod texture;
 pub mod trajectory;
 pub mod writer;
 
+#[cfg(test)]
+mod checks;
+
 pub use config::{SynthConfig, TrajectoryKind};
 pub use render::{Render, Renderer};
 pub use scene::Scene;
@@ -118,14 +121,16 @@ pub fn blur_offsets(cfg: &SynthConfig) -> Vec<f64> {
 }
 
 /// Renders frame images at time `t`: colour averaged over the exposure, depth
-/// and labels of the centre pose.
+/// and labels of the centre pose. `ae` is the auto-exposure gain of the
+/// previous frame (the camera adapts over a few frames); returns the new one.
 pub fn render_frame(
     renderer: &Renderer,
     motion: &Motion,
     cfg: &SynthConfig,
     t: f64,
     noise_seed: u32,
-) -> (FrameFiles, Pose) {
+    ae: Option<f32>,
+) -> (FrameFiles, Pose, f32) {
     let offsets = blur_offsets(cfg);
     let pose = motion.pose(t);
     let centre = renderer.render(&pose);
@@ -143,11 +148,11 @@ pub fn render_frame(
         acc.iter_mut()
             .for_each(|a| a.iter_mut().for_each(|v| *v *= k));
     }
-    let gain = sensor::exposure_gain(&cfg.sensor, noise_seed, t);
-    (
-        finish(&centre, &acc, gain, cfg, &renderer.camera, noise_seed),
-        pose,
-    )
+    let target = sensor::auto_exposure(&acc);
+    let ae = ae.map_or(target, |g| 0.75 * g + 0.25 * target);
+    let gain = ae * sensor::exposure_gain(&cfg.sensor, noise_seed, t);
+    let files = finish(&centre, &acc, gain, cfg, &renderer.camera, noise_seed);
+    (files, pose, ae)
 }
 
 fn finish(
@@ -245,17 +250,15 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
             let mut poses = Vec::with_capacity(cfg.frames);
             let mut hist = Histogram::default();
             let noise_base = (seed as u32) ^ 0x5e05;
+            let mut ae = None;
             for chunk in (0..cfg.frames).collect::<Vec<_>>().chunks(8) {
                 let rendered: Vec<(usize, FrameFiles)> = chunk
                     .iter()
                     .map(|&k| {
-                        let (files, pose) = render_frame(
-                            &renderer,
-                            &motion,
-                            cfg,
-                            times[k],
-                            noise_base.wrapping_add(k as u32 * 7919),
-                        );
+                        let noise = noise_base.wrapping_add(k as u32 * 7919);
+                        let (files, pose, gain) =
+                            render_frame(&renderer, &motion, cfg, times[k], noise, ae);
+                        ae = Some(gain);
                         poses.push(pose);
                         (k, files)
                     })
@@ -298,7 +301,8 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
                         let r = renderer.render(&poses[v]);
                         let rgb: Vec<[f32; 3]> = r.px.iter().map(|p| p.rgb).collect();
                         let nseed = (seed as u32) ^ 0x0e1a_0000 ^ (v as u32).wrapping_mul(7919);
-                        let gain = sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
+                        let gain = sensor::auto_exposure(&rgb)
+                            * sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
                         let mut f = finish(&r, &rgb, gain, cfg, &camera, nseed);
                         f.depth = sensor::exact_depth(&r);
                         f.depth_gt = None;

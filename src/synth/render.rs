@@ -133,9 +133,11 @@ impl<'a> Renderer<'a> {
             }
         }
         let ao = self.occlusion(&p);
+        // Light bounced off the floor reaches downward-facing surfaces (ceilings).
+        let amb = ao * (1.0 + 1.2 * (-n.z).max(0.0));
         let mut rgb = [0.0; 3];
         for c in 0..3 {
-            let light = scene.ambient[c] * ao + direct[c] * (0.75 + 0.25 * ao);
+            let light = scene.ambient[c] * amb + direct[c] * (0.75 + 0.25 * ao);
             rgb[c] = surf.albedo[c] * light + surf.emission[c];
         }
         let a = surf.albedo;

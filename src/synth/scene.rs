@@ -98,6 +98,8 @@ pub struct Scene {
     pub ambient: Rgb,
     /// Points worth looking at (furniture tops, pictures, windows...).
     pub interest: Vec<V3>,
+    /// The subset of `interest` with much to see (desks, shelves, beds...).
+    pub focus: Vec<V3>,
     /// The floor, ceiling and wall slabs (`solids[..shell.len()]`): tested
     /// against every ray; the rest are in the hierarchy.
     shell: Vec<Prim>,
@@ -147,7 +149,7 @@ impl Scene {
         let mut b = furniture::Builder::new(&mut rng, room.clone(), cfg.clutter as f32);
         shell(&mut b);
         furnish(&mut b);
-        let (mut solids, objects, interest, lamps) = b.finish();
+        let (mut solids, objects, interest, focus, lamps) = b.finish();
         let n_shell = solids.len();
         solids.extend(objects);
         let mut lights = ceiling_lights(&mut rng, &room);
@@ -189,6 +191,7 @@ impl Scene {
             lights,
             ambient: [a, a * 0.98, a * 0.95],
             interest,
+            focus,
             shell,
             bvh,
         })
@@ -415,21 +418,55 @@ fn shell(b: &mut furniture::Builder) {
             b.fixture(s);
         }
     }
-    // Ceiling lamps: flat discs (label "light" -> otherstructure).
+    // Ceiling lamps: flush discs (NYU "light" -> otherstructure) or pendants (lamp).
     let n = if r.area() > 18.0 { 2 } else { 1 };
+    let pendant = b.rng.random_bool(0.5);
     for k in 0..n {
         let (x, y) = lamp_xy(&r, k, n);
         let rad = b.rng.random_range(0.18..0.3);
-        b.fixture(Solid {
+        let disc = |z0: f32, hh: f32, label: u8, material: Material| Solid {
             shape: Shape::Cylinder,
-            center: V3::new(x, y, h - 0.03),
-            half: V3::new(rad, rad, 0.03),
+            center: V3::new(x, y, z0 + hh * 0.5),
+            half: V3::new(rad, rad, hh * 0.5),
             cos: 1.0,
             sin: 0.0,
-            label: label::OTHER_STRUCTURE,
-            material: Material::CeilingLight,
+            label,
+            material,
             seed: 0,
-        });
+        };
+        if pendant {
+            let cord = Solid {
+                half: V3::new(0.006, 0.006, 0.15),
+                center: V3::new(x, y, h - 0.15),
+                ..disc(
+                    0.0,
+                    0.0,
+                    label::LAMP,
+                    Material::Plastic {
+                        color: srgb(40, 40, 40),
+                    },
+                )
+            };
+            b.fixture(cord);
+            let color = b.pick(&[
+                srgb(240, 235, 220),
+                srgb(230, 230, 230),
+                srgb(250, 240, 210),
+            ]);
+            b.fixture(disc(
+                h - 0.45,
+                0.15,
+                label::LAMP,
+                Material::LampShade { color },
+            ));
+        } else {
+            b.fixture(disc(
+                h - 0.06,
+                0.06,
+                label::OTHER_STRUCTURE,
+                Material::CeilingLight,
+            ));
+        }
     }
 }
 
@@ -472,7 +509,7 @@ fn ceiling_lights(rng: &mut ChaCha8Rng, r: &Room) -> Vec<Light> {
         .map(|k| {
             let (x, y) = lamp_xy(r, k, n);
             Light {
-                pos: [x, y, r.height - 0.12],
+                pos: [x, y, r.height - 0.5],
                 color: [power, power * (1.0 - warm * 0.5), power * (1.0 - warm)],
                 shadows: true,
             }

@@ -23,6 +23,18 @@ pub fn exposure_gain(cfg: &SensorConfig, seed: u32, t: f64) -> f32 {
     1.0 + v * (2.0 * n - 1.0)
 }
 
+/// The gain that brings the mean linear luminance of an image to 0.2 (about
+/// 45 % grey after gamma), like a camera's auto-exposure; within `[0.3, 4]`.
+pub fn auto_exposure(rgb: &[[f32; 3]]) -> f32 {
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    for p in rgb.iter().step_by(7) {
+        sum += (0.3 * p[0] + 0.59 * p[1] + 0.11 * p[2]).min(2.0) as f64;
+        n += 1;
+    }
+    let mean = (sum / n.max(1) as f64) as f32;
+    (0.22 / mean.max(1e-4)).clamp(0.3, 4.0)
+}
+
 /// The 8-bit colour image of linear radiance `rgb` (row-major, `w x h`).
 pub fn color_image(
     rgb: &[[f32; 3]],

@@ -605,7 +605,7 @@ fn screen(s: f32, t: f32, seed: u32) -> Rgb {
 fn outdoor(dir: &V3, seed: u32) -> Rgb {
     let out = (-dir.y).max(1e-3);
     let (a, e) = (dir.x / out, dir.z / out);
-    let skyline = 0.04 + 0.3 * fbm1(a * 1.2 + 7.0, seed, 4);
+    let skyline = 0.02 + 0.2 * fbm1(a * 1.2 + 7.0, seed, 4);
     let c = if e < -0.25 {
         scale(
             srgb(120, 125, 110),

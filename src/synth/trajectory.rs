@@ -100,12 +100,13 @@ impl Motion {
         rng: &mut ChaCha8Rng,
     ) -> Result<Motion> {
         const ATTEMPTS: usize = 60;
-        let probe = ViewProbe::new(camera);
+        let probe = ViewProbe::new(camera, 6, 5);
+        let content = ViewProbe::new(camera, 12, 9);
         let mut last = String::new();
         for _ in 0..ATTEMPTS {
             let keys = match kind {
-                TrajectoryKind::Sweep => sweep(scene, cfg, duration, rng),
-                TrajectoryKind::Rpy => rpy(scene, cfg, duration, rng),
+                TrajectoryKind::Sweep => sweep(scene, cfg, duration, &content, rng),
+                TrajectoryKind::Rpy => rpy(scene, cfg, duration, &content, rng),
                 TrajectoryKind::Robot => robot(scene, cfg, duration, rng),
                 TrajectoryKind::Walk => walk(scene, cfg, duration, rng),
             };
@@ -179,13 +180,13 @@ struct ViewProbe {
 }
 
 impl ViewProbe {
-    fn new(cam: &Camera) -> Self {
+    fn new(cam: &Camera, nx: usize, ny: usize) -> Self {
         let mut rays = Vec::new();
-        for j in 0..5 {
-            for i in 0..6 {
+        for j in 0..ny {
+            for i in 0..nx {
                 let px = Point2::new(
-                    (i as f64 + 0.5) / 6.0 * cam.width as f64 - 0.5,
-                    (j as f64 + 0.5) / 5.0 * cam.height as f64 - 0.5,
+                    (i as f64 + 0.5) / nx as f64 * cam.width as f64 - 0.5,
+                    (j as f64 + 0.5) / ny as f64 * cam.height as f64 - 0.5,
                 );
                 let n = cam.normalized(&px);
                 rays.push([n.x, n.y]);
@@ -194,20 +195,41 @@ impl ViewProbe {
         ViewProbe { rays }
     }
 
-    fn median_depth(&self, scene: &Scene, pose: &Pose) -> f32 {
+    /// Depth and label along each probe ray.
+    fn cast(&self, scene: &Scene, pose: &Pose) -> Vec<(f32, u8)> {
         let o = pose.translation.vector.map(|v| v as f32);
-        let mut d: Vec<f32> = self
-            .rays
+        self.rays
             .iter()
             .map(|r| {
                 let dir = (pose.rotation * Vector3::new(r[0], r[1], 1.0)).map(|v| v as f32);
                 scene
                     .cast(&Ray::new(o, dir), 1e-4, 100.0)
-                    .map_or(0.0, |h| h.t)
+                    .map_or((0.0, crate::classes::VOID), |h| {
+                        (h.t, scene.solids[h.solid as usize].label)
+                    })
             })
-            .collect();
+            .collect()
+    }
+
+    fn median_depth(&self, scene: &Scene, pose: &Pose) -> f32 {
+        let mut d: Vec<f32> = self.cast(scene, pose).iter().map(|c| c.0).collect();
         d.sort_by(f32::total_cmp);
         d[d.len() / 2]
+    }
+
+    /// Number of distinct labels in view, 0 when the view is blocked (median
+    /// depth under 0.8 m).
+    fn content(&self, scene: &Scene, pose: &Pose) -> usize {
+        let hits = self.cast(scene, pose);
+        let mut d: Vec<f32> = hits.iter().map(|c| c.0).collect();
+        d.sort_by(f32::total_cmp);
+        if d[d.len() / 2] < 0.8 {
+            return 0;
+        }
+        let mut labels: Vec<u8> = hits.iter().map(|c| c.1).collect();
+        labels.sort_unstable();
+        labels.dedup();
+        labels.len()
     }
 }
 
@@ -307,21 +329,30 @@ fn sweep(
     scene: &Scene,
     cfg: &MotionConfig,
     duration: f64,
+    content: &ViewProbe,
     rng: &mut ChaCha8Rng,
 ) -> Option<(f64, Vec<Key>)> {
-    let target = interest(scene, rng, 0.3, 1.6);
-    let mut start = None;
-    for _ in 0..200 {
+    // The viewpoint and target that show the most classes, of a few candidates.
+    let mut best: Option<(usize, [f64; 3], [f64; 3])> = None;
+    for _ in 0..300 {
+        let target = interest(scene, rng, 0.3, 1.25);
         let Some(c) = free_point(scene, rng, (1.1, 1.7), cfg.clearance + 0.25) else {
             break;
         };
         let d = dist([c[0], c[1], 0.0], [target[0], target[1], 0.0]);
-        if (0.9..2.6).contains(&d) && segment_free(scene, c, target, 0.0) {
-            start = Some(c);
+        if !(1.2..2.8).contains(&d) || !segment_free(scene, c, target, 0.0) {
+            continue;
+        }
+        let (yaw, pitch) = look(c, target, 0.0);
+        let n = content.content(scene, &pose_from_angles(c, yaw, pitch, 0.0));
+        if best.is_none_or(|b| n > b.0) {
+            best = Some((n, c, target));
+        }
+        if n >= 7 {
             break;
         }
     }
-    let c0 = start?;
+    let (_, c0, target) = best?;
     let (dx, dy) = (target[0] - c0[0], target[1] - c0[1]);
     let dl = (dx * dx + dy * dy).sqrt();
     let side = [-dy / dl, dx / dl];
@@ -373,10 +404,23 @@ fn rpy(
     scene: &Scene,
     cfg: &MotionConfig,
     duration: f64,
+    content: &ViewProbe,
     rng: &mut ChaCha8Rng,
 ) -> Option<(f64, Vec<Key>)> {
-    let c0 = free_point(scene, rng, (1.2, 1.7), cfg.clearance + 0.35)?;
-    let target = interest(scene, rng, 0.3, 1.8);
+    let mut best: Option<(usize, [f64; 3], [f64; 3])> = None;
+    for _ in 0..40 {
+        let c = free_point(scene, rng, (1.2, 1.7), cfg.clearance + 0.35)?;
+        let target = interest(scene, rng, 0.3, 1.8);
+        let (yaw, pitch) = look(c, target, 0.0);
+        let n = content.content(scene, &pose_from_angles(c, yaw, pitch * 0.5, 0.0));
+        if best.is_none_or(|b| n > b.0) {
+            best = Some((n, c, target));
+        }
+        if n >= 7 {
+            break;
+        }
+    }
+    let (_, c0, target) = best?;
     let (yaw0, pitch0) = look(c0, target, 0.0);
     let f = 0.45 * cfg.speed;
     let (wy, wp, wr) = (
@@ -560,7 +604,8 @@ pub fn random_view(
     cfg: &MotionConfig,
     rng: &mut ChaCha8Rng,
 ) -> Result<Pose> {
-    let probe = ViewProbe::new(camera);
+    let probe = ViewProbe::new(camera, 12, 9);
+    let mut best: Option<(usize, Pose)> = None;
     for _ in 0..300 {
         let Some(p) = free_point(scene, rng, (0.8, 1.8), cfg.clearance + 0.1) else {
             break;
@@ -571,11 +616,16 @@ pub fn random_view(
         }
         let (yaw, pitch) = look(p, target, 0.0);
         let pose = pose_from_angles(p, yaw, pitch, rng.random_range(-0.08..0.08));
-        if probe.median_depth(scene, &pose) >= 0.8 {
-            return Ok(pose);
+        let n = probe.content(scene, &pose);
+        if n > 0 && best.as_ref().is_none_or(|b| n > b.0) {
+            best = Some((n, pose));
+        }
+        if n >= 5 {
+            break;
         }
     }
-    Err(Error::msg("could not find a free random view in this room"))
+    best.map(|b| b.1)
+        .ok_or_else(|| Error::msg("could not find a free random view in this room"))
 }
 
 /// Distance between two points.

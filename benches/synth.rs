@@ -50,8 +50,10 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(60);
-    let mut cfg = SynthConfig::default();
-    cfg.frames = frames;
+    let cfg = SynthConfig {
+        frames,
+        ..SynthConfig::default()
+    };
     let camera = cfg.camera().expect("camera");
     println!(
         "synth bench: {}x{}, {} frames per run, {} threads",

@@ -137,7 +137,7 @@ fn main() -> Result<()> {
     let summary = summary?;
     let secs = start.elapsed().as_secs_f64();
     eprintln!(
-        "wrote {} sequence frames and {} + {} NYU-layout images in {:.1} s ({:.1} images/s); {} classes in view",
+        "wrote {} sequence frames and {} + {} NYU-layout images in {:.1} s ({:.1} images/s); {} classes in view (all images)",
         summary.frames,
         summary.nyu_train,
         summary.nyu_test,

@@ -170,8 +170,10 @@ fn project_and_compare(
 fn frames_are_geometrically_consistent_across_views() {
     // Exact images (no sensor noise) from the distorted fr1 camera at 160x120.
     let cam = Camera::tum_fr1().resized(160, 120);
-    let mut cfg = SynthConfig::default();
-    cfg.sensor = SensorConfig::exact();
+    let cfg = SynthConfig {
+        sensor: SensorConfig::exact(),
+        ..SynthConfig::default()
+    };
     for (k, kind) in [
         TrajectoryKind::Sweep,
         TrajectoryKind::Walk,

@@ -458,6 +458,17 @@ mod tests {
     }
 
     #[test]
+    fn shipped_configs_are_valid() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+        let default = SynthConfig::from_file(dir.join("synth_default.toml")).unwrap();
+        assert_eq!(default, SynthConfig::default());
+        let train = SynthConfig::from_file(dir.join("synth_train.toml")).unwrap();
+        assert!(!train.output.sequence && train.scenes >= 100);
+        let blur = SynthConfig::from_file(dir.join("synth_blur.toml")).unwrap();
+        assert!(blur.blur.enabled && blur.trajectory == TrajectoryKind::Rpy);
+    }
+
+    #[test]
     fn round_trips_through_toml() {
         let c = SynthConfig::default();
         let back: SynthConfig = toml::from_str(&c.to_toml().unwrap()).unwrap();

@@ -85,9 +85,16 @@ pub fn noise2(x: f32, y: f32, seed: u32) -> f32 {
     let (fx, fy) = (floor(x), floor(y));
     let (ix, iy) = (fx as i32 as u32, fy as i32 as u32);
     let (tx, ty) = (smooth(x - fx), smooth(y - fy));
-    let v = |dx: u32, dy: u32| unit(hash3(ix.wrapping_add(dx), iy.wrapping_add(dy), seed));
-    let a = v(0, 0) + (v(1, 0) - v(0, 0)) * tx;
-    let b = v(0, 1) + (v(1, 1) - v(0, 1)) * tx;
+    let s = seed.wrapping_mul(0xcb1a_b31f);
+    let v = |dx: u32, dy: u32| {
+        let (x, y) = (ix.wrapping_add(dx), iy.wrapping_add(dy));
+        unit(hash(
+            x.wrapping_mul(0x8da6_b343) ^ y.wrapping_mul(0xd816_3841) ^ s,
+        ))
+    };
+    let (v00, v10, v01, v11) = (v(0, 0), v(1, 0), v(0, 1), v(1, 1));
+    let a = v00 + (v10 - v00) * tx;
+    let b = v01 + (v11 - v01) * tx;
     a + (b - a) * ty
 }
 
@@ -132,7 +139,7 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
         return (f64::NAN, f64::NAN);
     }
     // Cody-Waite reduction by pi/2 in two parts.
-    const P1: f64 = 1.570_796_326_794_896_6;
+    const P1: f64 = FRAC_PI_2;
     const P2: f64 = 6.123_233_995_736_766e-17;
     let k = (x * (1.0 / FRAC_PI_2)).round();
     let r = (x - k * P1) - k * P2;

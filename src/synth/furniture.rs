@@ -153,6 +153,17 @@ pub struct Builder<'a> {
     lamps: Vec<V3>,
 }
 
+/// What a [`Builder`] made.
+pub struct Built {
+    /// Floor, ceiling and wall slabs.
+    pub shell: Vec<Solid>,
+    /// Everything else.
+    pub solids: Vec<Solid>,
+    pub interest: Vec<V3>,
+    pub focus: Vec<V3>,
+    pub lamps: Vec<V3>,
+}
+
 /// An item builder.
 pub type Item = fn(&mut Builder) -> Group;
 
@@ -214,15 +225,15 @@ impl<'a> Builder<'a> {
         self.solids.push(s);
     }
 
-    /// Shell solids, other solids, points of interest, focus points and lamp positions.
-    pub fn finish(self) -> (Vec<Solid>, Vec<Solid>, Vec<V3>, Vec<V3>, Vec<V3>) {
-        (
-            self.shell,
-            self.solids,
-            self.interest,
-            self.focus,
-            self.lamps,
-        )
+    /// Everything built.
+    pub fn finish(self) -> Built {
+        Built {
+            shell: self.shell,
+            solids: self.solids,
+            interest: self.interest,
+            focus: self.focus,
+            lamps: self.lamps,
+        }
     }
 
     fn commit(&mut self, g: Group, p: &Place) -> bool {
@@ -428,7 +439,7 @@ fn book_row(
         if x + t > x1 {
             break;
         }
-        let h = b.r(0.16, max_h.min(0.32).max(0.17));
+        let h = b.r(0.16, max_h.clamp(0.17, 0.32));
         let d = b.r(0.12, max_d.max(0.13));
         let color = b.book_color();
         let s = b.seed();

@@ -170,7 +170,7 @@ impl Prim {
     }
 
     #[inline]
-    fn to_local(&self, v: V3) -> V3 {
+    fn local(&self, v: V3) -> V3 {
         V3::new(
             self.cos * v.x + self.sin * v.y,
             -self.sin * v.x + self.cos * v.y,
@@ -205,7 +205,7 @@ impl Prim {
             }
             let mut n = V3::zeros();
             n[axis] = if plus { 1.0 } else { -1.0 };
-            let nl = self.to_local(n);
+            let nl = self.local(n);
             let k = if nl.x != 0.0 {
                 0
             } else if nl.y != 0.0 {
@@ -214,10 +214,10 @@ impl Prim {
                 2
             };
             let face = 2 * k as u8 + (nl[k] > 0.0) as u8;
-            return Some((t0, face, self.to_local(ray.o + ray.d * t0 - self.center)));
+            return Some((t0, face, self.local(ray.o + ray.d * t0 - self.center)));
         }
-        let lo = self.to_local(ray.o - self.center);
-        let ld = self.to_local(ray.d);
+        let lo = self.local(ray.o - self.center);
+        let ld = self.local(ray.d);
         let h = self.half;
         let (mut t0, mut t1, mut face) = (f32::NEG_INFINITY, f32::INFINITY, 0u8);
         let axes = if self.kind == Self::ROTATED {

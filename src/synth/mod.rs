@@ -44,6 +44,7 @@ pub mod geom;
 pub mod render;
 pub mod scene;
 pub mod sensor;
+pub mod shadow;
 pub mod texture;
 pub mod trajectory;
 pub mod writer;
@@ -139,8 +140,8 @@ pub fn render_frame(
         for &o in offsets.iter().filter(|&&o| o != 0.0) {
             let sub = renderer.render(&motion.pose(t + o));
             for (a, p) in acc.iter_mut().zip(&sub.px) {
-                for c in 0..3 {
-                    a[c] += p.rgb[c];
+                for (v, c) in a.iter_mut().zip(p.rgb) {
+                    *v += c;
                 }
             }
         }
@@ -200,6 +201,7 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
     };
     let mut scenes_json = Vec::new();
     let mut totals = Histogram::default();
+    let mut nyu_totals = Histogram::default();
     let (mut train, mut test) = (Vec::new(), Vec::new());
     let mut frames_written = 0;
     let frac = cfg.output.nyu_test_fraction;
@@ -333,6 +335,8 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
                 }
             }
             info["nyu_label_histogram"] = hist.to_json();
+            info["nyu_classes_in_view"] = json!(hist.classes_present());
+            nyu_totals.add(&hist);
         }
         scenes_json.push(info);
     }
@@ -341,12 +345,20 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
         writer::write_split(&dir.join("train.txt"), &train)?;
         writer::write_split(&dir.join("test.txt"), &test)?;
         camera.save(dir.join("camera.toml"))?;
-        json!({"folder": "nyu", "train": train.len(), "test": test.len(), "depth": "exact"})
+        json!({
+            "folder": "nyu",
+            "train": train.len(),
+            "test": test.len(),
+            "depth": "exact",
+            "label_histogram": nyu_totals.to_json(),
+            "classes_in_view": nyu_totals.classes_present(),
+        })
     } else {
         Value::Null
     };
     let bytes = writer::scene_json(cfg, &camera, scenes_json, &totals, nyu)?;
     crate::io::write_atomic(out.join("scene.json"), &bytes)?;
+    totals.add(&nyu_totals);
     Ok(Summary {
         frames: frames_written,
         nyu_train: train.len(),

@@ -1,12 +1,13 @@
 //! Ray casting: one ray per pixel through the camera model (each distorted pixel
 //! is back-projected with [`Camera::normalized`], so images follow the lens
 //! distortion exactly), rows in parallel with rayon. Shading is Lambertian with
-//! point lights (hard shadows from the ceiling lights), ambient light darkened
+//! point lights (shadows of the ceiling lights from cached cube maps), ambient light darkened
 //! near the room's corners and edges, and emissive screens, lamps and windows.
 
 use super::config::RenderConfig;
 use super::geom::{Ray, V3};
 use super::scene::Scene;
+use super::shadow::ShadowMap;
 use super::texture::TexCtx;
 use crate::camera::Camera;
 use crate::classes::VOID;
@@ -48,6 +49,8 @@ pub struct Renderer<'a> {
     pub config: RenderConfig,
     /// Undistorted normalised coordinates `(X/Z, Y/Z)` of each pixel.
     rays: Vec<[f32; 2]>,
+    /// Shadow cube map of each light that casts shadows.
+    shadows: Vec<Option<ShadowMap>>,
 }
 
 /// Overall light gain that maps the scene's light powers to a well exposed image.
@@ -63,11 +66,17 @@ impl<'a> Renderer<'a> {
                 [n.x as f32, n.y as f32]
             })
             .collect();
+        let shadows = scene
+            .lights
+            .iter()
+            .map(|l| (l.shadows && config.shadows).then(|| ShadowMap::new(V3::from(l.pos), 512)))
+            .collect();
         Renderer {
             scene,
             camera: camera.clone(),
             config: config.clone(),
             rays,
+            shadows,
         }
     }
 
@@ -115,21 +124,20 @@ impl<'a> Renderer<'a> {
         let dn = ray.d.norm();
         let cos = (n.dot(&ray.d) / dn).abs();
         let mut direct = [0.0f32; 3];
-        let lift = p + n * 1e-3;
-        for l in &scene.lights {
+        for (l, shadow) in scene.lights.iter().zip(&self.shadows) {
             let to = V3::from(l.pos) - p;
             let d2 = to.norm_squared();
             let ndl = n.dot(&to) / d2.sqrt();
             if ndl <= 0.0 {
                 continue;
             }
-            if l.shadows && self.config.shadows && scene.occluded(&Ray::new(lift, to), 1e-4, 0.999)
-            {
+            let vis = shadow.as_ref().map_or(1.0, |m| m.visibility(scene, &p, &n));
+            if vis <= 0.0 {
                 continue;
             }
-            let k = LIGHT_GAIN * ndl / (d2 + 1.0);
-            for c in 0..3 {
-                direct[c] += l.color[c] * k;
+            let k = LIGHT_GAIN * ndl * vis / (d2 + 1.0);
+            for (d, c) in direct.iter_mut().zip(l.color) {
+                *d += c * k;
             }
         }
         let ao = self.occlusion(&p);
@@ -147,7 +155,7 @@ impl<'a> Renderer<'a> {
             depth: hit.t,
             cos,
             label: s.label,
-            flags: (surf.no_depth as u8) * FLAG_NO_DEPTH | (dark as u8) * FLAG_DARK,
+            flags: ((surf.no_depth as u8) * FLAG_NO_DEPTH) | ((dark as u8) * FLAG_DARK),
         }
     }
 

@@ -149,9 +149,11 @@ impl Scene {
         let mut b = furniture::Builder::new(&mut rng, room.clone(), cfg.clutter as f32);
         shell(&mut b);
         furnish(&mut b);
-        let (mut solids, objects, interest, focus, lamps) = b.finish();
+        let built = b.finish();
+        let (interest, focus, lamps) = (built.interest, built.focus, built.lamps);
+        let mut solids = built.shell;
         let n_shell = solids.len();
-        solids.extend(objects);
+        solids.extend(built.solids);
         let mut lights = ceiling_lights(&mut rng, &room);
         for l in lamps {
             lights.push(Light {
@@ -638,8 +640,10 @@ mod tests {
     #[test]
     fn rooms_are_closed_and_furnished_without_overlaps() {
         for seed in 0..12 {
-            let mut cfg = RoomConfig::default();
-            cfg.l_shape_probability = if seed % 2 == 0 { 1.0 } else { 0.0 };
+            let cfg = RoomConfig {
+                l_shape_probability: if seed % 2 == 0 { 1.0 } else { 0.0 },
+                ..RoomConfig::default()
+            };
             let scene = Scene::generate(&cfg, seed).unwrap();
             assert!(
                 scene.solids.len() > 30,

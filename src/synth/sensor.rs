@@ -139,17 +139,20 @@ pub fn sensor_depth(r: &Render, cam: &Camera, cfg: &SensorConfig, seed: u32) -> 
         let blob_scale = 24.0 * w as f32 / 640.0;
         let shadow_max = 12.0 * w as f32 / 640.0;
         out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for x in 0..w {
+            for (x, out) in row.iter_mut().enumerate() {
                 let i = y * w + x;
                 let p = &r.px[i];
                 let hsh = hash2(seed, i as u32);
+                // Patchy, not salt-and-pepper: thresholds vary smoothly.
+                let (bx, by) = (x as f32 / blob_scale, y as f32 / blob_scale);
+                let patch = noise2(bx * 2.0, by * 2.0, seed ^ 0x9a7c);
                 let mut hole = p.flags & FLAG_NO_DEPTH != 0
-                    || (p.flags & FLAG_DARK != 0 && unit(hsh) < 0.7)
-                    || p.cos < 0.06 + 0.12 * unit(hash(hsh))
-                    || unit(hsh >> 3 ^ 0xabcd) < 0.002;
+                    || (p.flags & FLAG_DARK != 0 && patch < 0.7)
+                    || p.cos < 0.02 + 0.1 * patch * patch
+                    || unit(hsh >> 3 ^ 0xabcd) < 0.0005;
                 if !hole {
-                    let n = noise2(x as f32 / blob_scale, y as f32 / blob_scale, seed ^ 0xb10b);
-                    hole = n > 0.93 - 0.02 * (z[i] - 2.0).max(0.0);
+                    let n = noise2(bx, by, seed ^ 0xb10b);
+                    hole = n > 0.975 - 0.015 * (z[i] - 3.0).max(0.0);
                 }
                 if !hole {
                     // Ragged edges: either side of a depth jump may lose its reading.
@@ -165,7 +168,7 @@ pub fn sensor_depth(r: &Render, cam: &Camera, cfg: &SensorConfig, seed: u32) -> 
                     hole = jump && unit(hash(hsh ^ 0x1ed6e)) < 0.5;
                 }
                 if hole {
-                    row[x] = 0.0;
+                    *out = 0.0;
                 }
             }
             // Occlusion shadows: the projector, to the camera's right, cannot

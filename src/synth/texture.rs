@@ -546,7 +546,7 @@ fn picture(s: f32, t: f32, seed: u32) -> Rgb {
                 let cx = xs.iter().filter(|&&x| s > x).count() as u32;
                 let cy = ys.iter().filter(|&&y| t > y).count() as u32;
                 let h = hash3(cx, cy, seed);
-                if h % 3 == 0 {
+                if h.is_multiple_of(3) {
                     pick(&POSTER, h >> 4)
                 } else {
                     srgb(235, 232, 220)
@@ -605,8 +605,8 @@ fn screen(s: f32, t: f32, seed: u32) -> Rgb {
 fn outdoor(dir: &V3, seed: u32) -> Rgb {
     let out = (-dir.y).max(1e-3);
     let (a, e) = (dir.x / out, dir.z / out);
-    let skyline = 0.02 + 0.2 * fbm1(a * 1.2 + 7.0, seed, 4);
-    let c = if e < -0.25 {
+    let skyline = -0.06 + 0.22 * fbm1(a * 1.2 + 7.0, seed, 4);
+    let c = if e < -0.35 {
         scale(
             srgb(120, 125, 110),
             0.8 + 0.3 * noise2(a * 20.0, e * 20.0, seed),

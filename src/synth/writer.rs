@@ -161,7 +161,9 @@ pub fn write_split(path: &Path, names: &[String]) -> Result<()> {
     })
 }
 
-/// `scene.json`: seed, full configuration, per-scene rooms and label histograms.
+/// `scene.json`: seed, full configuration, per-scene rooms and label
+/// histograms; `totals` counts the sequence frames (the NYU-layout views are
+/// counted in `nyu`).
 pub fn scene_json(
     cfg: &SynthConfig,
     camera: &crate::camera::Camera,
@@ -180,6 +182,7 @@ pub fn scene_json(
         "scenes": scenes,
         "label_histogram": totals.to_json(),
         "classes_in_view": totals.classes_present(),
+        "label_histogram_counts": "pixels per class over all sequence frames",
         "nyu": nyu,
     });
     let mut bytes = serde_json::to_vec_pretty(&v).map_err(|e| Error::msg(e.to_string()))?;

@@ -43,7 +43,7 @@ pub type Face = u8;
 pub struct Ray {
     pub o: V3,
     pub d: V3,
-    inv: V3,
+    pub inv: V3,
 }
 
 impl Ray {

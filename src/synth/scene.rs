@@ -103,6 +103,11 @@ pub struct Scene {
     /// The floor, ceiling and wall slabs (`solids[..shell.len()]`): tested
     /// against every ray; the rest are in the hierarchy.
     shell: Vec<Prim>,
+    /// Index in `shell` of the slab behind each face of the room's bounding
+    /// box (`2 * axis + positive`); `None` when that does not apply.
+    exit: Option<[usize; 6]>,
+    /// The L-shape's inner wall slabs.
+    inner: Vec<Prim>,
     bvh: Bvh,
 }
 
@@ -181,11 +186,34 @@ impl Scene {
         // The hierarchy indexes all solids; the shell ones are made unreachable
         // by building it over the objects and shifting their ids.
         let bvh = Bvh::build_offset(&solids, n_shell);
-        let shell = solids[..n_shell]
+        let shell: Vec<Prim> = solids[..n_shell]
             .iter()
             .enumerate()
             .map(|(i, s)| Prim::new(s, i as u32))
             .collect();
+        // Which slab a ray leaving the room's bounding box through each of its
+        // faces hits (floor and ceiling are shell solids 0 and 1, walls follow).
+        let mut exit = [None; 6];
+        exit[4] = Some(0);
+        exit[5] = Some(1);
+        let mut inner = Vec::new();
+        for (k, wall) in room.walls.iter().enumerate() {
+            let face = if wall.a[0] == wall.b[0] && (wall.a[0] == 0.0 || wall.a[0] == width) {
+                Some((wall.a[0] == width) as usize)
+            } else if wall.a[1] == wall.b[1] && (wall.a[1] == 0.0 || wall.a[1] == depth) {
+                Some(2 + (wall.a[1] == depth) as usize)
+            } else {
+                None
+            };
+            match face {
+                Some(f) => exit[f] = Some(k + 2),
+                None => inner.push(shell[k + 2]),
+            }
+        }
+        let exit = exit
+            .iter()
+            .all(Option::is_some)
+            .then(|| exit.map(|e| e.unwrap_or(0)));
         let a = 0.12 + 0.04 * rng.random::<f32>();
         Ok(Scene {
             room,
@@ -195,6 +223,8 @@ impl Scene {
             interest,
             focus,
             shell,
+            exit,
+            inner,
             bvh,
         })
     }
@@ -204,7 +234,31 @@ impl Scene {
     pub fn cast(&self, ray: &Ray, tmin: f32, tmax: f32) -> Option<Hit> {
         let mut best = None;
         let mut tmax = tmax;
-        for p in &self.shell {
+        let r = &self.room;
+        let o = ray.o;
+        let inside =
+            o.x > 0.0 && o.y > 0.0 && o.z > 0.0 && o.x < r.width && o.y < r.depth && o.z < r.height;
+        let candidates: &mut dyn Iterator<Item = &Prim> = match (&self.exit, inside) {
+            (Some(exit), true) => {
+                // The face through which the ray leaves the bounding box tells
+                // which floor, ceiling or outer wall slab it meets.
+                let size = [r.width, r.depth, r.height];
+                let (mut te, mut face) = (f32::INFINITY, 4);
+                for a in 0..3 {
+                    if ray.d[a] != 0.0 {
+                        let bound = if ray.d[a] > 0.0 { size[a] } else { 0.0 };
+                        let t = (bound - o[a]) * ray.inv[a];
+                        if t < te {
+                            te = t;
+                            face = 2 * a + (ray.d[a] > 0.0) as usize;
+                        }
+                    }
+                }
+                &mut std::iter::once(&self.shell[exit[face]]).chain(&self.inner)
+            }
+            _ => &mut self.shell.iter(),
+        };
+        for p in candidates {
             if let Some((t, face, local)) = p.intersect(ray, tmin, tmax) {
                 tmax = t;
                 best = Some(Hit {
@@ -406,16 +460,21 @@ fn shell(b: &mut furniture::Builder) {
         }
     };
     for wall in &r.walls {
-        let p = wall.place(wall.len * 0.5, 0.0);
+        // In pieces of at most a metre, so that the hierarchy stays tight.
+        let pieces = (wall.len / 1.0).ceil().max(1.0) as usize;
+        let len = (wall.len - 0.002) / pieces as f32;
         let mut g = Group::default();
-        g.bx(
-            &p,
-            [0.0, 0.006, 0.04],
-            [wall.len - 0.002, 0.012, 0.08],
-            label::WALL,
-            skirting,
-            0,
-        );
+        for k in 0..pieces {
+            let p = wall.place(0.001 + len * (k as f32 + 0.5), 0.0);
+            g.bx(
+                &p,
+                [0.0, 0.006, 0.04],
+                [len, 0.012, 0.08],
+                label::WALL,
+                skirting,
+                0,
+            );
+        }
         for s in g.solids {
             b.fixture(s);
         }
@@ -678,6 +737,42 @@ mod tests {
                     scene.cast(&ray, 1e-4, 1e4).is_some(),
                     "seed {seed}: ray escaped"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn fast_cast_agrees_with_brute_force() {
+        for seed in 0..6 {
+            let cfg = RoomConfig {
+                l_shape_probability: if seed % 2 == 0 { 1.0 } else { 0.0 },
+                ..RoomConfig::default()
+            };
+            let scene = Scene::generate(&cfg, seed).unwrap();
+            let r = &scene.room;
+            for k in 0..3000u32 {
+                let u = |j| {
+                    crate::synth::detmath::unit(crate::synth::detmath::hash3(k, j, seed as u32))
+                };
+                let o = V3::new(u(0) * r.width, u(1) * r.depth, u(2) * r.height);
+                if !r.contains(o.x, o.y, 0.0) {
+                    continue;
+                }
+                let ray = Ray::new(o, V3::new(u(3) - 0.5, u(4) - 0.5, u(5) - 0.5));
+                let brute = scene
+                    .solids
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, s)| s.intersect(&ray, 1e-4, 1e4).map(|h| (h.0, i as u32)))
+                    .min_by(|a, b| a.0.total_cmp(&b.0));
+                let fast = scene.cast(&ray, 1e-4, 1e4).map(|h| (h.t, h.solid));
+                match (brute, fast) {
+                    (Some(a), Some(b)) => assert!(
+                        (a.0 - b.0).abs() < 1e-4 * a.0.max(1.0),
+                        "seed {seed} ray {k}: {a:?} {b:?}"
+                    ),
+                    (a, b) => assert_eq!(a.is_some(), b.is_some(), "seed {seed} ray {k}"),
+                }
             }
         }
     }

@@ -141,7 +141,7 @@ fn pick(palette: &[Rgb], h: u32) -> Rgb {
 
 /// Streaky wood grain along `u`, brightness factor around 1.
 fn grain(u: f32, v: f32, seed: u32) -> f32 {
-    let warp = fbm2(u * 0.8, v * 6.0, seed, 3);
+    let warp = fbm2(u * 0.8, v * 6.0, seed, 2);
     let rings = (v * 40.0 + warp * 9.0).fr();
     let x = 1.0 - (2.0 * rings - 1.0).abs();
     let x2 = x * x;
@@ -172,12 +172,12 @@ impl Material {
         let albedo = match *self {
             Material::Paint { color } => {
                 let k = 0.96
-                    + 0.06 * fbm2(u * 1.5, v * 1.5, seed, 3)
+                    + 0.06 * fbm2(u * 1.5, v * 1.5, seed, 2)
                     + 0.025 * noise2(u * 90.0, v * 90.0, seed ^ 1);
                 scale(color, k)
             }
             Material::Plaster { color } => {
-                scale(color, 0.97 + 0.04 * fbm2(u * 4.0, v * 4.0, seed, 3))
+                scale(color, 0.97 + 0.04 * fbm2(u * 4.0, v * 4.0, seed, 2))
             }
             Material::Brick { color, mortar } => {
                 let row = (v / 0.075).ff();
@@ -252,7 +252,7 @@ impl Material {
                 let weave = ((u * 400.0).ff() as i32 + (v * 400.0).ff() as i32) & 1;
                 let k = 0.9
                     + 0.05 * weave as f32
-                    + 0.12 * fbm2(u * 8.0, v * 8.0, seed, 3)
+                    + 0.12 * fbm2(u * 8.0, v * 8.0, seed, 2)
                     + 0.06 * noise2(u * 150.0, v * 150.0, seed ^ 9);
                 scale(color, k)
             }

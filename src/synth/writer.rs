@@ -22,7 +22,12 @@ pub fn prepare_out(out: &Path) -> Result<()> {
             "output path exists and is not a folder",
         ));
     }
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| {
+        Error::msg(format!(
+            "cannot create output folder {}: {e}",
+            out.display()
+        ))
+    })?;
     let probe = out.join(".synth_write_test");
     write_atomic(&probe, b"ok").map_err(|e| {
         Error::msg(format!(

@@ -276,11 +276,16 @@ impl<'a> Builder<'a> {
 
     /// Builds an item and places it against a random wall, at least `margin`
     /// metres from the wall's ends. Returns whether it found room.
+    /// The item is rebuilt (other random sizes) every ten failed tries.
     pub fn try_wall(&mut self, item: Item, margin: f32, tries: usize) -> bool {
-        let g = item(self);
-        let (min, max) = g.bounds();
+        let mut g = item(self);
+        let (mut min, mut max) = g.bounds();
         let total: f32 = self.room.walls.iter().map(|w| w.len).sum();
-        for _ in 0..tries {
+        for attempt in 0..tries {
+            if attempt > 0 && attempt % 10 == 0 {
+                g = item(self);
+                (min, max) = g.bounds();
+            }
             let mut pick = self.r(0.0, total);
             let mut wall = self.room.walls[0];
             for w in &self.room.walls {
@@ -458,8 +463,24 @@ fn book_row(
 /// Small things to put on a surface at height `z` within `[x0, x1] x [y0, y1]`.
 #[allow(clippy::too_many_arguments)]
 fn props(b: &mut Builder, g: &mut Group, x0: f32, x1: f32, y0: f32, y1: f32, z: f32, n: usize) {
+    let mut taken: Vec<(f32, f32)> = Vec::new();
     for _ in 0..n {
-        let (x, y) = (b.r(x0 + 0.1, x1 - 0.1), b.r(y0 + 0.08, y1 - 0.08));
+        // A spot at least 0.3 m from the other props, if one is found.
+        let mut spot = None;
+        for _ in 0..8 {
+            let (x, y) = (b.r(x0 + 0.1, x1 - 0.1), b.r(y0 + 0.08, y1 - 0.08));
+            if taken
+                .iter()
+                .all(|&(u, v)| (u - x) * (u - x) + (v - y) * (v - y) > 0.09)
+            {
+                spot = Some((x, y));
+                break;
+            }
+        }
+        let Some((x, y)) = spot else {
+            continue;
+        };
+        taken.push((x, y));
         let (c, s) = b.yaw_jitter(0.6);
         let p = L.sub([x, y, z], c, s);
         let seed = b.seed();
@@ -1763,26 +1784,27 @@ pub fn counter(b: &mut Builder) -> Group {
         s,
     );
     g.cyl(&L, sx, 0.08, h, 0.018, 0.28, label::OTHER_PROP, steel, s);
-    let tiles = Material::Tiles {
-        color: b.pick(&[
-            srgb(235, 235, 230),
-            srgb(180, 200, 210),
-            srgb(210, 200, 180),
-        ]),
-        grout: srgb(170, 170, 170),
-        size: 0.1,
-        checker: false,
-    };
-    g.bx(
-        &L,
-        [0.0, 0.005, h + 0.3],
-        [w, 0.01, 0.6],
-        label::WALL,
-        tiles,
-        s ^ 2,
-    );
     let uh = (b.room.height - 0.25 - (h + 0.6)).min(0.75);
-    if uh > 0.4 {
+    if uh > 0.4 && b.chance(0.6) {
+        // Wall cabinets above a tiled backsplash.
+        let tiles = Material::Tiles {
+            color: b.pick(&[
+                srgb(235, 235, 230),
+                srgb(180, 200, 210),
+                srgb(210, 200, 180),
+            ]),
+            grout: srgb(170, 170, 170),
+            size: 0.1,
+            checker: false,
+        };
+        g.bx(
+            &L,
+            [0.0, 0.005, h + 0.3],
+            [w, 0.01, 0.6],
+            label::WALL,
+            tiles,
+            s ^ 2,
+        );
         g.bx(
             &L,
             [0.0, 0.02 + 0.17, h + 0.6 + uh * 0.5],

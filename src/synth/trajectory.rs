@@ -108,7 +108,7 @@ impl Motion {
                 TrajectoryKind::Sweep => sweep(scene, cfg, duration, &content, rng),
                 TrajectoryKind::Rpy => rpy(scene, cfg, duration, &content, rng),
                 TrajectoryKind::Robot => robot(scene, cfg, duration, rng),
-                TrajectoryKind::Walk => walk(scene, cfg, duration, rng),
+                TrajectoryKind::Walk => walk(scene, cfg, duration, &content, rng),
             };
             let Some((dt, keys)) = keys else {
                 last = "no free starting point".into();
@@ -531,8 +531,22 @@ fn walk(
     scene: &Scene,
     cfg: &MotionConfig,
     duration: f64,
+    content: &ViewProbe,
     rng: &mut ChaCha8Rng,
 ) -> Option<(f64, Vec<Key>)> {
+    // The most informative of a few targets, seen from `from`.
+    let choose = |rng: &mut ChaCha8Rng, from: [f64; 3]| {
+        let mut best = (0, interest(scene, rng, 0.2, 2.0));
+        for _ in 0..6 {
+            let t = interest(scene, rng, 0.2, 2.0);
+            let (yaw, pitch) = look(from, t, 0.0);
+            let n = content.content(scene, &pose_from_angles(from, yaw, pitch, 0.0));
+            if n > best.0 {
+                best = (n, t);
+            }
+        }
+        best.1
+    };
     let clear = cfg.clearance + 0.2;
     let mut way = vec![free_point(scene, rng, (1.0, 1.8), clear)?];
     let speed = rng.random_range(0.25..0.45) * cfg.speed;
@@ -556,7 +570,7 @@ fn walk(
     let n = (duration / dt).ceil() as usize + 5;
     let mut keys = Vec::with_capacity(n);
     let (mut seg, mut along) = (0usize, 0.0f64);
-    let mut target = interest(scene, rng, 0.2, 2.0);
+    let mut target = choose(rng, way[0]);
     let mut next_target = rng.random_range(2.5..5.0);
     let mut aim = target;
     let mut yaw = 0.0;
@@ -572,7 +586,7 @@ fn walk(
             a[2] + (b[2] - a[2]) * s,
         ];
         if t > next_target {
-            target = interest(scene, rng, 0.2, 2.0);
+            target = choose(rng, pos);
             next_target = t + rng.random_range(2.5..5.0);
         }
         // The gaze follows the target with a lag.

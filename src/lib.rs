@@ -8,9 +8,11 @@
 //! Foundation modules: [`camera`] (pinhole + Brown-Conrady), [`geometry`]
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
 //! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
-//! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs).
+//! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs),
+//! [`classes`] (NYU40 names and palette), [`synth`] (synthetic indoor RGB-D data).
 
 pub mod camera;
+pub mod classes;
 pub mod dataset;
 pub mod error;
 pub mod features;
@@ -25,6 +27,7 @@ pub mod pnp;
 pub mod range_matcher;
 pub mod raster;
 pub mod sdfcnn;
+pub mod synth;
 pub mod training;
 pub mod trajectory;
 

@@ -1,0 +1,179 @@
+//! The 40 NYUv2 semantic classes (Gupta et al. 2013 mapping of the 894 NYU labels),
+//! 0-based as in the NYU PNG conversions: `0 = wall ... 39 = otherprop`, [`VOID`] = 255
+//! for unlabelled pixels. Names from `nyu40_class_names.txt` (1-based there), colours
+//! from the ScanNet NYU40 palette (`nyu40_colormap_scannet.csv`).
+
+/// Number of semantic classes.
+pub const NUM_CLASSES: usize = 40;
+
+/// Label value of unlabelled / void pixels.
+pub const VOID: u8 = 255;
+
+/// Class names, indexed by the 0-based label.
+pub const NYU40: [&str; NUM_CLASSES] = [
+    "wall",
+    "floor",
+    "cabinet",
+    "bed",
+    "chair",
+    "sofa",
+    "table",
+    "door",
+    "window",
+    "bookshelf",
+    "picture",
+    "counter",
+    "blinds",
+    "desk",
+    "shelves",
+    "curtain",
+    "dresser",
+    "pillow",
+    "mirror",
+    "floor mat",
+    "clothes",
+    "ceiling",
+    "books",
+    "refridgerator",
+    "television",
+    "paper",
+    "towel",
+    "shower curtain",
+    "box",
+    "whiteboard",
+    "person",
+    "night stand",
+    "toilet",
+    "sink",
+    "lamp",
+    "bathtub",
+    "bag",
+    "otherstructure",
+    "otherfurniture",
+    "otherprop",
+];
+
+/// Display colour of each class (ScanNet NYU40 palette), indexed by the 0-based label.
+pub const PALETTE: [[u8; 3]; NUM_CLASSES] = [
+    [174, 199, 232], // wall
+    [152, 223, 138], // floor
+    [31, 119, 180],  // cabinet
+    [255, 187, 120], // bed
+    [188, 189, 34],  // chair
+    [140, 86, 75],   // sofa
+    [255, 152, 150], // table
+    [214, 39, 40],   // door
+    [197, 176, 213], // window
+    [148, 103, 189], // bookshelf
+    [196, 156, 148], // picture
+    [23, 190, 207],  // counter
+    [178, 76, 76],   // blinds
+    [247, 182, 210], // desk
+    [66, 188, 102],  // shelves
+    [219, 219, 141], // curtain
+    [140, 57, 197],  // dresser
+    [202, 185, 52],  // pillow
+    [51, 176, 203],  // mirror
+    [200, 54, 131],  // floor mat
+    [92, 193, 61],   // clothes
+    [78, 71, 183],   // ceiling
+    [172, 114, 82],  // books
+    [255, 127, 14],  // refridgerator
+    [91, 163, 138],  // television
+    [153, 98, 156],  // paper
+    [140, 153, 101], // towel
+    [158, 218, 229], // shower curtain
+    [100, 125, 154], // box
+    [178, 127, 135], // whiteboard
+    [120, 185, 128], // person
+    [146, 111, 194], // night stand
+    [44, 160, 44],   // toilet
+    [112, 128, 144], // sink
+    [96, 207, 209],  // lamp
+    [227, 119, 194], // bathtub
+    [213, 92, 176],  // bag
+    [94, 106, 211],  // otherstructure
+    [82, 84, 163],   // otherfurniture
+    [100, 85, 144],  // otherprop
+];
+/// Named constants for the labels the code refers to.
+pub mod label {
+    pub const WALL: u8 = 0;
+    pub const FLOOR: u8 = 1;
+    pub const CABINET: u8 = 2;
+    pub const BED: u8 = 3;
+    pub const CHAIR: u8 = 4;
+    pub const SOFA: u8 = 5;
+    pub const TABLE: u8 = 6;
+    pub const DOOR: u8 = 7;
+    pub const WINDOW: u8 = 8;
+    pub const BOOKSHELF: u8 = 9;
+    pub const PICTURE: u8 = 10;
+    pub const COUNTER: u8 = 11;
+    pub const BLINDS: u8 = 12;
+    pub const DESK: u8 = 13;
+    pub const SHELVES: u8 = 14;
+    pub const CURTAIN: u8 = 15;
+    pub const DRESSER: u8 = 16;
+    pub const PILLOW: u8 = 17;
+    pub const MIRROR: u8 = 18;
+    pub const FLOOR_MAT: u8 = 19;
+    pub const CLOTHES: u8 = 20;
+    pub const CEILING: u8 = 21;
+    pub const BOOKS: u8 = 22;
+    pub const REFRIGERATOR: u8 = 23;
+    pub const TELEVISION: u8 = 24;
+    pub const PAPER: u8 = 25;
+    pub const TOWEL: u8 = 26;
+    pub const SHOWER_CURTAIN: u8 = 27;
+    pub const BOX: u8 = 28;
+    pub const WHITEBOARD: u8 = 29;
+    pub const PERSON: u8 = 30;
+    pub const NIGHT_STAND: u8 = 31;
+    pub const TOILET: u8 = 32;
+    pub const SINK: u8 = 33;
+    pub const LAMP: u8 = 34;
+    pub const BATHTUB: u8 = 35;
+    pub const BAG: u8 = 36;
+    pub const OTHER_STRUCTURE: u8 = 37;
+    pub const OTHER_FURNITURE: u8 = 38;
+    pub const OTHER_PROP: u8 = 39;
+}
+
+/// Name of a label (`"void"` for [`VOID`], `None` for other values past 39).
+pub fn name(label: u8) -> Option<&'static str> {
+    match label {
+        VOID => Some("void"),
+        l => NYU40.get(l as usize).copied(),
+    }
+}
+
+/// Display colour of a label; black for void and out-of-range values.
+pub fn colorize(label: u8) -> [u8; 3] {
+    PALETTE.get(label as usize).copied().unwrap_or([0, 0, 0])
+}
+
+/// Colourises a label image with [`PALETTE`].
+pub fn colorize_image(labels: &image::GrayImage) -> image::RgbImage {
+    image::RgbImage::from_fn(labels.width(), labels.height(), |x, y| {
+        image::Rgb(colorize(labels.get_pixel(x, y).0[0]))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_and_colours_match_the_nyu40_tables() {
+        assert_eq!(NYU40[0], "wall");
+        assert_eq!(NYU40[label::CEILING as usize], "ceiling");
+        assert_eq!(NYU40[label::REFRIGERATOR as usize], "refridgerator");
+        assert_eq!(NYU40[39], "otherprop");
+        assert_eq!(colorize(label::WALL), [174, 199, 232]);
+        assert_eq!(colorize(label::OTHER_PROP), [100, 85, 144]);
+        assert_eq!(colorize(VOID), [0, 0, 0]);
+        assert_eq!(name(VOID), Some("void"));
+        assert_eq!(name(40), None);
+    }
+}

@@ -9,6 +9,7 @@
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
 //! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
 //! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs).
+//! The SLAM system itself is [`slam`] (`cargo run --release --bin slam`).
 
 pub mod camera;
 pub mod dataset;
@@ -25,6 +26,7 @@ pub mod pnp;
 pub mod range_matcher;
 pub mod raster;
 pub mod sdfcnn;
+pub mod slam;
 pub mod training;
 pub mod trajectory;
 

@@ -14,8 +14,8 @@ use crate::training::{
     BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, epoch_order,
 };
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams};
 use burn::optim::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -220,7 +220,9 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         .map_err(|e| Error::msg(e.to_string()))?;
     let mut adam = AdamConfig::new();
     if cfg.grad_clip_norm > 0.0 {
-        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.grad_clip_norm as f32)));
+        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(
+            cfg.grad_clip_norm as f32,
+        )));
     }
     let mut optim = adam.init();
     let mut state = TrainState::default();

@@ -536,7 +536,9 @@ impl Slam {
                 let (kf_tx, kf_rx) = sync_channel::<MapperInput>(config.system.queue);
                 let (reply_tx, reply_rx) = channel::<Arc<KeyframeFeatures>>();
                 let (corr_tx, corr_rx) = sync_channel::<usize>(config.system.queue * 4);
-                let (ev_tx, ev_rx) = channel::<(FrameRecord, Progress)>();
+                // Bounded: tracking stays within two frames of the caller, so a
+                // stop request (Ctrl-C) takes effect at once.
+                let (ev_tx, ev_rx) = sync_channel::<(FrameRecord, Progress)>(2);
                 let mapping = s.spawn(move || {
                     for input in kf_rx {
                         let id = input.keyframe.id;

@@ -108,7 +108,7 @@ impl Corrector {
         if verified.is_some() {
             self.stats.odometry_verified += 1;
         }
-        let (inliers, matches) = verified.map(|v| (v.1, v.2)).unwrap_or_default();
+        let (inliers, matches) = verified.map(|v| (v.inliers, v.matches)).unwrap_or_default();
         added.push(Constraint {
             a: k - 1,
             b: k,
@@ -159,7 +159,7 @@ impl Corrector {
             for (j, kind) in candidates {
                 self.stats.pairs_tried += 1;
                 let guess = others[j].0.inverse() * odom;
-                if let Some((rel, inliers, matches)) = verify_pair(
+                if let Some(v) = verify_pair(
                     &self.camera,
                     &self.cfg,
                     &others[j].1,
@@ -175,10 +175,10 @@ impl Corrector {
                     added.push(Constraint {
                         a: j,
                         b: k,
-                        relative: rel,
+                        relative: v.relative,
                         kind,
-                        inliers,
-                        matches,
+                        inliers: v.inliers,
+                        matches: v.matches,
                     });
                 }
             }

@@ -117,13 +117,16 @@ pub struct Progress {
     pub lost: usize,
 }
 
+/// Called after every frame.
+pub type FrameCallback = Box<dyn FnMut(&FrameRecord, &Progress)>;
+
 /// How a run is observed and stopped.
 pub struct Control {
     /// Set it (Ctrl-C) to stop after the current frame; what was tracked is kept.
     pub stop: Arc<AtomicBool>,
     pub log: Log,
     /// Called on the calling thread after every frame.
-    pub on_frame: Option<Box<dyn FnMut(&FrameRecord, &Progress)>>,
+    pub on_frame: Option<FrameCallback>,
 }
 
 impl Default for Control {

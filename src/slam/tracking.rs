@@ -116,6 +116,34 @@ struct Correspondences {
     source: Vec<usize>,
 }
 
+/// Keypoints with world points to match against (a keyframe or the previous frame).
+#[derive(Clone, Copy)]
+struct Source<'a> {
+    features: &'a KeyFeatures,
+    world: &'a [Option<Point3<f64>>],
+    /// Whether it is the reference keyframe.
+    reference: bool,
+}
+
+/// The best match of a current keypoint so far.
+#[derive(Clone, Copy)]
+struct Candidate {
+    distance: f32,
+    world: Point3<f64>,
+    reference: bool,
+    source: usize,
+}
+
+/// A verified keyframe pair.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairMatch {
+    /// `T_a⁻¹ T_b`.
+    pub relative: Pose,
+    pub inliers: usize,
+    /// Inlier keypoint pairs `(in a, in b)`.
+    pub matches: Vec<(u32, u32)>,
+}
+
 /// Counters of tracking trouble, with frame indices.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct TrackingCounters {
@@ -452,13 +480,21 @@ impl Tracker {
             .iter()
             .map(|p| p.map(|p| kf.pose * p))
             .collect();
-        let mut sources = vec![(&kf.data.features, kf_world.as_slice(), true)];
+        let mut sources = vec![Source {
+            features: &kf.data.features,
+            world: &kf_world,
+            reference: true,
+        }];
         let prev = self
             .last
             .as_ref()
             .filter(|l| self.cfg.tracking.match_previous_frame && l.index != kf.frame_index);
         if let Some(l) = prev {
-            sources.push((&l.features, l.world.as_slice(), false));
+            sources.push(Source {
+                features: &l.features,
+                world: &l.world,
+                reference: false,
+            });
         }
         let guide = self.cfg.matcher.predict_window.then_some(predicted);
         let corr = self.correspond(&sources, current, guide, &self.cfg.matcher.range());
@@ -496,7 +532,11 @@ impl Tracker {
                 .map(|p| p.map(|p| kf.pose * p))
                 .collect();
             let corr = self.correspond(
-                &[(&kf.data.features, world.as_slice(), true)],
+                &[Source {
+                    features: &kf.data.features,
+                    world: &world,
+                    reference: true,
+                }],
                 current,
                 None,
                 &self.cfg.matcher.wide(),
@@ -531,7 +571,7 @@ impl Tracker {
     /// keypoints; a current keypoint keeps its nearest-descriptor match.
     fn correspond(
         &self,
-        sources: &[(&KeyFeatures, &[Option<Point3<f64>>], bool)],
+        sources: &[Source<'_>],
         current: &KeyFeatures,
         guide: Option<&Pose>,
         cfg: &RangeMatcherConfig,
@@ -545,7 +585,7 @@ impl Tracker {
 /// frame), search windows are centred on the projections of the world points.
 fn correspond(
     camera: &Camera,
-    sources: &[(&KeyFeatures, &[Option<Point3<f64>>], bool)],
+    sources: &[Source<'_>],
     current: &KeyFeatures,
     guide: Option<&Pose>,
     cfg: &RangeMatcherConfig,
@@ -553,8 +593,13 @@ fn correspond(
     let world_to_cam = guide.map(|g| g.inverse());
     let bounds = ViewBounds::new(camera);
     // Best (distance, world point, from reference) per current keypoint.
-    let mut best: Vec<Option<(f32, Point3<f64>, bool, usize)>> = vec![None; current.len()];
-    for (features, world, from_ref) in sources {
+    let mut best: Vec<Option<Candidate>> = vec![None; current.len()];
+    for &Source {
+        features,
+        world,
+        reference,
+    } in sources
+    {
         if features.dim != current.dim || features.dim == 0 {
             continue;
         }
@@ -593,20 +638,25 @@ fn correspond(
             let Some(Some(w)) = world.get(ids[m.i]) else {
                 continue;
             };
-            if best[m.j].is_none_or(|b| m.distance < b.0) {
-                best[m.j] = Some((m.distance, *w, *from_ref, ids[m.i]));
+            if best[m.j].is_none_or(|b| m.distance < b.distance) {
+                best[m.j] = Some(Candidate {
+                    distance: m.distance,
+                    world: *w,
+                    reference,
+                    source: ids[m.i],
+                });
             }
         }
     }
     let mut corr = Correspondences::default();
     for (j, b) in best.into_iter().enumerate() {
-        if let Some((_, w, r, i)) = b {
+        if let Some(c) = b {
             let p = current.points[j];
-            corr.world.push(w);
+            corr.world.push(c.world);
             corr.pixels.push(Point2::new(p[0] as f64, p[1] as f64));
             corr.current.push(j);
-            corr.from_reference.push(r);
-            corr.source.push(i);
+            corr.from_reference.push(c.reference);
+            corr.source.push(c.source);
         }
     }
     corr
@@ -622,11 +672,15 @@ pub fn verify_pair(
     a: &KeyframeFeatures,
     b: &KeyframeFeatures,
     guess: Option<&Pose>,
-) -> Option<(Pose, usize, Vec<(u32, u32)>)> {
+) -> Option<PairMatch> {
     let attempt = |guide: Option<&Pose>, mcfg: &RangeMatcherConfig| {
         let corr = correspond(
             camera,
-            &[(&a.features, a.points_cam.as_slice(), true)],
+            &[Source {
+                features: &a.features,
+                world: &a.points_cam,
+                reference: true,
+            }],
             &b.features,
             guide,
             mcfg,
@@ -654,5 +708,9 @@ pub fn verify_pair(
         .filter(|&k| r.inliers[k])
         .map(|k| (corr.source[k] as u32, corr.current[k] as u32))
         .collect();
-    Some((r.pose.inverse(), r.n_inliers, pairs))
+    Some(PairMatch {
+        relative: r.pose.inverse(),
+        inliers: r.n_inliers,
+        matches: pairs,
+    })
 }

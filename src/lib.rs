@@ -10,6 +10,7 @@
 //! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
 //! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs),
 //! [`classes`] (NYU40 names and palette), [`synth`] (synthetic indoor RGB-D data).
+//! The SLAM system itself is [`slam`] (`cargo run --release --bin slam`).
 
 pub mod camera;
 pub mod classes;
@@ -27,6 +28,7 @@ pub mod pnp;
 pub mod range_matcher;
 pub mod raster;
 pub mod sdfcnn;
+pub mod slam;
 pub mod synth;
 pub mod training;
 pub mod trajectory;

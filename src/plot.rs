@@ -10,7 +10,8 @@ use std::sync::Once;
 
 static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
 
-fn register_fonts() {
+/// Registers the bundled font under the generic family names (idempotent).
+pub(crate) fn register_fonts() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         for name in ["sans-serif", "serif", "monospace"] {

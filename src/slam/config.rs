@@ -1,0 +1,537 @@
+//! Every tunable of the SLAM system ([`SlamConfig`]), read from TOML
+//! (`configs/slam.toml` documents each field). Unknown keys are errors, missing
+//! keys take the defaults below.
+
+use crate::error::{Error, Result};
+use crate::fpfdcnn::inference::DetectorConfig;
+use crate::pnp::PnpConfig;
+use crate::range_matcher::RangeMatcherConfig;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlamConfig {
+    pub features: FeatureConfig,
+    pub matcher: MatcherConfig,
+    pub pnp: PnpSettings,
+    pub tracking: TrackingConfig,
+    pub keyframes: KeyframeConfig,
+    pub map: MapConfig,
+    pub labels: LabelVoteConfig,
+    pub correction: CorrectionConfig,
+    pub system: SystemConfig,
+}
+
+/// Keypoints and descriptors (section IV-B).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FeatureConfig {
+    /// Keypoints kept per image (ORB features / FPFDCNN top-k; the paper: 500).
+    pub top_k: usize,
+    /// FPFDCNN: minimum keypoint probability.
+    pub fpfdcnn_threshold: f32,
+    /// FPFDCNN: non-maximum suppression radius, pixels.
+    pub fpfdcnn_nms_radius: usize,
+    /// FPFDCNN: no keypoint closer than this to the border, pixels.
+    pub fpfdcnn_border: usize,
+    /// FPFDCNN: image resize factor before the network (0.5 for weights trained at 240x320).
+    pub fpfdcnn_input_scale: f32,
+    /// ORB: FAST threshold, grey levels.
+    pub orb_fast_threshold: u8,
+    /// ORB: pyramid levels.
+    pub orb_levels: usize,
+    /// ORB: pyramid scale factor.
+    pub orb_scale_factor: f32,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        FeatureConfig {
+            top_k: 500,
+            fpfdcnn_threshold: 0.015,
+            fpfdcnn_nms_radius: 4,
+            fpfdcnn_border: 4,
+            orb_fast_threshold: 20,
+            orb_levels: 8,
+            orb_scale_factor: 1.2,
+            fpfdcnn_input_scale: 1.0,
+        }
+    }
+}
+
+impl FeatureConfig {
+    pub fn detector(&self) -> DetectorConfig {
+        DetectorConfig {
+            threshold: self.fpfdcnn_threshold,
+            nms_radius: self.fpfdcnn_nms_radius,
+            top_k: self.top_k,
+            border: self.fpfdcnn_border,
+            input_scale: self.fpfdcnn_input_scale,
+        }
+    }
+
+    pub fn orb(&self) -> crate::features::OrbConfig {
+        crate::features::OrbConfig {
+            n_features: self.top_k,
+            fast_threshold: self.orb_fast_threshold,
+            n_levels: self.orb_levels,
+            scale_factor: self.orb_scale_factor,
+            ..Default::default()
+        }
+    }
+}
+
+/// The range matcher (Fig. 4, eq 8).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MatcherConfig {
+    /// Side of the square search window, pixels (the paper: 140).
+    pub window: f32,
+    /// Centre the window on where the constant-velocity motion predicts the
+    /// keypoint instead of on its own position.
+    pub predict_window: bool,
+    /// Mutual-nearest check.
+    pub mutual: bool,
+    /// Lowe ratio (0: off).
+    pub ratio: f32,
+    /// Window for relocalisation and keyframe-pair verification when the
+    /// guided match fails, pixels (the whole image at 640x480: 1300).
+    pub wide_window: f32,
+    /// Lowe ratio of wide-window matching (0: off).
+    pub wide_ratio: f32,
+}
+
+impl Default for MatcherConfig {
+    fn default() -> Self {
+        MatcherConfig {
+            window: 140.0,
+            predict_window: true,
+            mutual: true,
+            ratio: 0.0,
+            wide_window: 1300.0,
+            wide_ratio: 0.9,
+        }
+    }
+}
+
+impl MatcherConfig {
+    pub fn range(&self) -> RangeMatcherConfig {
+        RangeMatcherConfig {
+            window: self.window,
+            mutual: self.mutual,
+            ratio: (self.ratio > 0.0).then_some(self.ratio),
+        }
+    }
+
+    pub fn wide(&self) -> RangeMatcherConfig {
+        RangeMatcherConfig {
+            window: self.wide_window,
+            mutual: self.mutual,
+            ratio: (self.wide_ratio > 0.0).then_some(self.wide_ratio),
+        }
+    }
+}
+
+/// PnP + RANSAC (eqs 9-10).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PnpSettings {
+    /// Inlier threshold on the reprojection error, pixels.
+    pub threshold_px: f64,
+    /// Maximum RANSAC iterations.
+    pub max_iterations: usize,
+    /// RANSAC confidence for the adaptive iteration count.
+    pub confidence: f64,
+    /// Fewer inliers than this: the pose is rejected (tracking lost).
+    pub min_inliers: usize,
+    /// Levenberg-Marquardt iterations of the refinement on the inliers.
+    pub refine_iterations: usize,
+    /// RANSAC seed.
+    pub seed: u64,
+}
+
+impl Default for PnpSettings {
+    fn default() -> Self {
+        PnpSettings {
+            threshold_px: 3.0,
+            max_iterations: 500,
+            confidence: 0.999,
+            min_inliers: 20,
+            refine_iterations: 20,
+            seed: 0,
+        }
+    }
+}
+
+impl PnpSettings {
+    pub fn pnp(&self) -> PnpConfig {
+        PnpConfig {
+            threshold_px: self.threshold_px,
+            confidence: self.confidence,
+            max_iterations: self.max_iterations,
+            min_inliers: self.min_inliers.max(4),
+            refine_iterations: self.refine_iterations,
+            seed: self.seed,
+        }
+    }
+}
+
+/// Frame tracking (section IV-B).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrackingConfig {
+    /// Also match against the previous frame (not only the reference keyframe).
+    pub match_previous_frame: bool,
+    /// Depth readings outside `[min_depth, max_depth]` metres give no 3D point.
+    pub min_depth: f64,
+    pub max_depth: f64,
+    /// Keyframes tried by relocalisation (most similar mean descriptors first).
+    pub relocalisation_candidates: usize,
+    /// After this many consecutive lost frames a keyframe is started at the
+    /// constant-velocity pose so that tracking can resume (0: never).
+    pub reinitialise_after: usize,
+    /// Start at the ground-truth pose of the first frame when the sequence has
+    /// one (otherwise the identity), so that unaligned errors mean something.
+    pub start_at_ground_truth: bool,
+}
+
+impl Default for TrackingConfig {
+    fn default() -> Self {
+        TrackingConfig {
+            match_previous_frame: true,
+            min_depth: 0.1,
+            max_depth: 6.0,
+            relocalisation_candidates: 5,
+            reinitialise_after: 10,
+            start_at_ground_truth: true,
+        }
+    }
+}
+
+/// Keyframe selection: a tracked frame becomes a keyframe when any rule fires.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct KeyframeConfig {
+    /// Fewer PnP inliers against the reference keyframe than this.
+    pub min_inliers: usize,
+    /// Translation since the reference keyframe above this, metres.
+    pub max_translation: f64,
+    /// Rotation since the reference keyframe above this, degrees.
+    pub max_rotation_deg: f64,
+    /// This many frames since the reference keyframe (0: no limit).
+    pub max_frames: usize,
+}
+
+impl Default for KeyframeConfig {
+    fn default() -> Self {
+        KeyframeConfig {
+            min_inliers: 80,
+            max_translation: 0.10,
+            max_rotation_deg: 10.0,
+            max_frames: 20,
+        }
+    }
+}
+
+/// Dense semantic map (section IV-C).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MapConfig {
+    /// Voxel side, metres.
+    pub voxel_size: f64,
+    /// Every `pixel_stride`-th pixel of a keyframe (in x and y) is fused; the
+    /// keyframe keeps its RGB, depth and labels at this resolution.
+    pub pixel_stride: u32,
+    /// Depths outside `[min_depth, max_depth]` metres are not fused.
+    pub min_depth: f64,
+    pub max_depth: f64,
+    /// Write the PLY as ASCII instead of binary little-endian.
+    pub ply_ascii: bool,
+    /// Side of the top-down picture of the map, pixels.
+    pub topdown_size: u32,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        MapConfig {
+            voxel_size: 0.02,
+            pixel_stride: 2,
+            min_depth: 0.1,
+            max_depth: 4.0,
+            ply_ascii: false,
+            topdown_size: 1000,
+        }
+    }
+}
+
+/// How the votes of a voxel's observations decide its label.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LabelVoteConfig {
+    /// The winning class needs at least this many votes.
+    pub min_votes: u32,
+    /// ... and at least this share of the voxel's votes.
+    pub min_share: f64,
+    /// Whether void (255) observations count as votes (against every class).
+    pub void_votes: bool,
+}
+
+impl Default for LabelVoteConfig {
+    fn default() -> Self {
+        LabelVoteConfig {
+            min_votes: 1,
+            min_share: 0.0,
+            void_votes: false,
+        }
+    }
+}
+
+/// Robust kernel of the pose graph.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RobustKernel {
+    None,
+    Huber,
+    Cauchy,
+}
+
+/// Data correction (section IV-A): global (keyframe-pair constraints + pose
+/// graph) and local (matched keypoints unified into one world point).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CorrectionConfig {
+    /// Global correction on/off.
+    pub enabled: bool,
+    /// Randomly chosen earlier keyframes tried per keyframe (the paper's way).
+    pub random_pairs: usize,
+    /// Earlier keyframes whose camera centre is within `proximity_radius`
+    /// metres (and viewing direction within `proximity_angle_deg`) are tried,
+    /// nearest first, at most `proximity_pairs`.
+    pub proximity_pairs: usize,
+    pub proximity_radius: f64,
+    pub proximity_angle_deg: f64,
+    /// Earlier keyframes with the most similar mean descriptor (cosine) are
+    /// tried, at most `similarity_pairs`, if the cosine is above `min_similarity`.
+    pub similarity_pairs: usize,
+    pub min_similarity: f32,
+    /// Keyframes closer in id than this are not paired (the odometry edge links
+    /// neighbours already).
+    pub min_id_gap: usize,
+    /// A pair becomes a constraint with at least this many PnP inliers.
+    pub min_inliers: usize,
+    /// ... and this share of its matches as inliers.
+    pub min_inlier_ratio: f64,
+    /// Pose-graph Levenberg-Marquardt iterations.
+    pub lm_iterations: usize,
+    /// Standard deviations of the edge errors (information = 1 / sigma²).
+    pub sigma_translation: f64,
+    pub sigma_rotation_deg: f64,
+    /// Robust kernel on the whitened edge error, and its scale.
+    pub robust_kernel: RobustKernel,
+    pub robust_delta: f64,
+    /// Optimise as soon as a loop constraint is found (otherwise once at the end).
+    pub optimise_online: bool,
+    /// Local correction on/off.
+    pub local: bool,
+    /// Local correction: a keyframe's depth is rescaled by the median ratio of its
+    /// unified points' depths to its own, if it has this many ...
+    pub local_min_observations: usize,
+    /// ... clamped to `1 ± local_max_scale_change`.
+    pub local_max_scale_change: f64,
+    /// Seed of the random pair selection.
+    pub seed: u64,
+}
+
+impl Default for CorrectionConfig {
+    fn default() -> Self {
+        CorrectionConfig {
+            enabled: true,
+            random_pairs: 2,
+            proximity_pairs: 3,
+            proximity_radius: 0.5,
+            proximity_angle_deg: 45.0,
+            similarity_pairs: 2,
+            min_similarity: 0.6,
+            min_id_gap: 2,
+            min_inliers: 30,
+            min_inlier_ratio: 0.25,
+            lm_iterations: 30,
+            sigma_translation: 0.01,
+            sigma_rotation_deg: 0.5,
+            robust_kernel: RobustKernel::Huber,
+            robust_delta: 3.0,
+            optimise_online: true,
+            local: true,
+            local_min_observations: 20,
+            local_max_scale_change: 0.2,
+            seed: 0,
+        }
+    }
+}
+
+/// Threads and reporting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SystemConfig {
+    /// Tracking, mapping and correction in their own threads (Fig. 1); off:
+    /// everything in order on one thread (deterministic, for tests).
+    pub threads: bool,
+    /// Capacity of the channels between threads (back-pressure on tracking).
+    pub queue: usize,
+    /// Distance from the true surface within which a map point counts as
+    /// correctly placed (Table 11 "position accuracy"), metres.
+    pub position_tolerance: f64,
+    /// At most this many map points are evaluated against ground truth.
+    pub max_eval_points: usize,
+}
+
+impl Default for SystemConfig {
+    fn default() -> Self {
+        SystemConfig {
+            threads: true,
+            queue: 8,
+            position_tolerance: 0.05,
+            max_eval_points: 200_000,
+        }
+    }
+}
+
+impl SlamConfig {
+    /// Parses TOML; errors name the file and line.
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let cfg: SlamConfig =
+            toml::from_str(text).map_err(|e| crate::camera::toml_error(path, text, e))?;
+        cfg.validate().map_err(|m| Error::invalid(path, m))?;
+        Ok(cfg)
+    }
+
+    /// Reads a TOML file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        Self::parse(&crate::io::read_text(path)?, path)
+    }
+
+    /// The configuration as TOML.
+    pub fn to_toml(&self) -> Result<String> {
+        toml::to_string_pretty(self).map_err(|e| Error::msg(e.to_string()))
+    }
+
+    /// Checks ranges; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let pos = |v: f64, name: &str| -> std::result::Result<(), String> {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("{name} must be a positive number, got {v}"))
+            }
+        };
+        if self.features.top_k == 0 {
+            return Err("features.top_k must be at least 1".into());
+        }
+        pos(self.matcher.window as f64, "matcher.window")?;
+        pos(self.matcher.wide_window as f64, "matcher.wide_window")?;
+        for (r, name) in [
+            (self.matcher.ratio, "matcher.ratio"),
+            (self.matcher.wide_ratio, "matcher.wide_ratio"),
+        ] {
+            if !(0.0..=1.0).contains(&r) {
+                return Err(format!("{name} must be in [0, 1] (0: off), got {r}"));
+            }
+        }
+        pos(self.pnp.threshold_px, "pnp.threshold_px")?;
+        if !(self.pnp.confidence > 0.0 && self.pnp.confidence < 1.0) {
+            return Err(format!(
+                "pnp.confidence must be in (0, 1), got {}",
+                self.pnp.confidence
+            ));
+        }
+        if self.pnp.min_inliers < 4 {
+            return Err("pnp.min_inliers must be at least 4".into());
+        }
+        pos(self.tracking.max_depth, "tracking.max_depth")?;
+        if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
+            return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
+        }
+        pos(self.keyframes.max_translation, "keyframes.max_translation")?;
+        pos(
+            self.keyframes.max_rotation_deg,
+            "keyframes.max_rotation_deg",
+        )?;
+        pos(self.map.voxel_size, "map.voxel_size")?;
+        pos(self.map.max_depth, "map.max_depth")?;
+        if !(self.map.min_depth >= 0.0 && self.map.min_depth < self.map.max_depth) {
+            return Err("map.min_depth must be in [0, map.max_depth)".into());
+        }
+        if self.map.pixel_stride == 0 || self.map.pixel_stride > 64 {
+            return Err("map.pixel_stride must be in 1..=64".into());
+        }
+        if self.map.topdown_size < 100 {
+            return Err("map.topdown_size must be at least 100 pixels".into());
+        }
+        if !(0.0..=1.0).contains(&self.labels.min_share) {
+            return Err("labels.min_share must be in [0, 1]".into());
+        }
+        pos(
+            self.correction.proximity_radius,
+            "correction.proximity_radius",
+        )?;
+        pos(
+            self.correction.proximity_angle_deg,
+            "correction.proximity_angle_deg",
+        )?;
+        pos(
+            self.correction.sigma_translation,
+            "correction.sigma_translation",
+        )?;
+        pos(
+            self.correction.sigma_rotation_deg,
+            "correction.sigma_rotation_deg",
+        )?;
+        pos(self.correction.robust_delta, "correction.robust_delta")?;
+        if self.correction.min_inliers < 4 {
+            return Err("correction.min_inliers must be at least 4".into());
+        }
+        if !(0.0..=1.0).contains(&self.correction.min_inlier_ratio) {
+            return Err("correction.min_inlier_ratio must be in [0, 1]".into());
+        }
+        if !(0.0..1.0).contains(&self.correction.local_max_scale_change) {
+            return Err("correction.local_max_scale_change must be in [0, 1)".into());
+        }
+        if self.correction.min_id_gap == 0 {
+            return Err("correction.min_id_gap must be at least 1".into());
+        }
+        if self.system.queue == 0 {
+            return Err("system.queue must be at least 1".into());
+        }
+        pos(self.system.position_tolerance, "system.position_tolerance")?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_round_trip_and_errors_name_fields() {
+        let cfg = SlamConfig::default();
+        let text = cfg.to_toml().unwrap();
+        assert_eq!(SlamConfig::parse(&text, Path::new("x.toml")).unwrap(), cfg);
+        let e = SlamConfig::parse("[map]\nvoxel = 1.0\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("c.toml:2") && e.contains("voxel"), "{e}");
+        let e = SlamConfig::parse("[map]\nvoxel_size = -1.0\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("map.voxel_size"), "{e}");
+        let shipped = include_str!("../../configs/slam.toml");
+        assert_eq!(
+            SlamConfig::parse(shipped, Path::new("configs/slam.toml")).unwrap(),
+            cfg,
+            "configs/slam.toml must list the defaults"
+        );
+    }
+}

@@ -1,0 +1,231 @@
+//! The shared map (Fig. 1): keyframes with their features, depth, labels and
+//! colours, and the constraints between keyframe pairs found by data
+//! correction. Tracking creates keyframes, mapping fills in their semantics and
+//! inserts them, correction adds constraints and corrects their poses; the
+//! threads share it as [`SharedMap`].
+
+use super::keypoints::KeyFeatures;
+use crate::camera::Camera;
+use crate::dataset::{DepthImage, LabelImage};
+use crate::geometry::Pose;
+use image::RgbImage;
+use nalgebra::{Point2, Point3};
+use serde::{Deserialize, Serialize};
+use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
+
+/// What tracking, relocalisation and correction need of a keyframe: its
+/// keypoints, their 3D points in the keyframe's camera (eqs 9-10, from sensor
+/// or predicted depth) and its global descriptor signature.
+#[derive(Debug, Clone, Default)]
+pub struct KeyframeFeatures {
+    pub features: KeyFeatures,
+    /// Camera coordinates of each keypoint, `None` without a usable depth.
+    pub points_cam: Vec<Option<Point3<f64>>>,
+    /// Normalised mean descriptor.
+    pub signature: Vec<f32>,
+}
+
+impl KeyframeFeatures {
+    /// Features with 3D points from a depth image (`None` outside `[min, max]`).
+    pub fn new(
+        features: KeyFeatures,
+        depth: Option<&DepthImage>,
+        camera: &Camera,
+        depth_range: (f64, f64),
+    ) -> Self {
+        let points_cam = points_from_depth(&features, depth, camera, depth_range);
+        let signature = features.mean_descriptor();
+        KeyframeFeatures {
+            features,
+            points_cam,
+            signature,
+        }
+    }
+
+    /// Number of keypoints with a 3D point.
+    pub fn n_points(&self) -> usize {
+        self.points_cam.iter().filter(|p| p.is_some()).count()
+    }
+}
+
+/// Back-projects keypoints with the depth at their nearest pixel (eq 9 inverted).
+pub fn points_from_depth(
+    features: &KeyFeatures,
+    depth: Option<&DepthImage>,
+    camera: &Camera,
+    (min, max): (f64, f64),
+) -> Vec<Option<Point3<f64>>> {
+    features
+        .points
+        .iter()
+        .map(|p| {
+            let d = depth?.at(p[0] as f64, p[1] as f64)? as f64;
+            (d >= min && d <= max)
+                .then(|| camera.back_project(&Point2::new(p[0] as f64, p[1] as f64), d))
+        })
+        .collect()
+}
+
+/// The normalised image coordinates `(X/Z, Y/Z)` that project inside the image:
+/// an inner box of the undistorted border. Projecting a point outside it is
+/// unreliable with strong radial distortion (the polynomial folds back).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewBounds {
+    pub x: (f64, f64),
+    pub y: (f64, f64),
+}
+
+impl ViewBounds {
+    pub fn new(camera: &Camera) -> Self {
+        let (w, h) = (camera.width as f64 - 1.0, camera.height as f64 - 1.0);
+        let n = |x: f64, y: f64| camera.normalized(&Point2::new(x, y));
+        let (mut b, steps) = (
+            ViewBounds {
+                x: (f64::NEG_INFINITY, f64::INFINITY),
+                y: (f64::NEG_INFINITY, f64::INFINITY),
+            },
+            32,
+        );
+        for k in 0..=steps {
+            let f = k as f64 / steps as f64;
+            b.x.0 = b.x.0.max(n(0.0, f * h).x);
+            b.x.1 = b.x.1.min(n(w, f * h).x);
+            b.y.0 = b.y.0.max(n(f * w, 0.0).y);
+            b.y.1 = b.y.1.min(n(f * w, h).y);
+        }
+        b
+    }
+
+    /// Whether a camera-frame point is in front of the camera and inside the bounds.
+    pub fn contains(&self, p: &Point3<f64>) -> bool {
+        if p.z <= 1e-6 {
+            return false;
+        }
+        let (x, y) = (p.x / p.z, p.y / p.z);
+        x > self.x.0 && x < self.x.1 && y > self.y.0 && y < self.y.1
+    }
+}
+
+/// A keyframe's images at the fusion resolution (every `stride`-th pixel).
+#[derive(Debug, Clone)]
+pub struct KeyframeView {
+    pub stride: u32,
+    pub rgb: RgbImage,
+    pub depth: DepthImage,
+    pub labels: LabelImage,
+}
+
+impl KeyframeView {
+    /// Subsamples full-resolution images (nearest pixel: labels are not blended).
+    pub fn new(stride: u32, rgb: &RgbImage, depth: &DepthImage, labels: &LabelImage) -> Self {
+        let (w, h) = rgb.dimensions();
+        let (sw, sh) = (w.div_ceil(stride), h.div_ceil(stride));
+        let small_rgb = RgbImage::from_fn(sw, sh, |x, y| *rgb.get_pixel(x * stride, y * stride));
+        let mut small_depth = DepthImage::new(sw, sh);
+        let mut small_labels = LabelImage::new(sw, sh, crate::dataset::labels::VOID);
+        for y in 0..sh {
+            for x in 0..sw {
+                let (fx, fy) = (x * stride, y * stride);
+                let i = (y * sw + x) as usize;
+                if fx < depth.width && fy < depth.height {
+                    small_depth.data[i] = depth.data[(fy * depth.width + fx) as usize];
+                }
+                if fx < labels.width && fy < labels.height {
+                    small_labels.data[i] = labels.get(fx, fy);
+                }
+            }
+        }
+        KeyframeView {
+            stride,
+            rgb: small_rgb,
+            depth: small_depth,
+            labels: small_labels,
+        }
+    }
+}
+
+/// A keyframe of the map.
+#[derive(Debug, Clone)]
+pub struct KeyFrame {
+    pub id: usize,
+    /// Index of its frame in the sequence.
+    pub frame_index: usize,
+    pub stamp: f64,
+    /// The pose tracking gave it (camera-to-world), never changed.
+    pub odom_pose: Pose,
+    /// The current estimate, corrected by the pose graph.
+    pub pose: Pose,
+    pub gt_pose: Option<Pose>,
+    pub track: Arc<KeyframeFeatures>,
+    /// RGB, depth (sensor or predicted) and labels at the fusion resolution.
+    pub view: KeyframeView,
+    /// Depth rescaling found by local correction (1: none).
+    pub depth_scale: f64,
+}
+
+/// Why two keyframes are linked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ConstraintKind {
+    /// Consecutive keyframes, relative pose from tracking.
+    Odometry,
+    /// A random earlier keyframe (the paper's global optimisation).
+    Random,
+    /// An earlier keyframe whose camera was close by.
+    Proximity,
+    /// An earlier keyframe whose descriptors look alike.
+    Similarity,
+}
+
+/// A relative-pose constraint `T_a⁻¹ T_b` between keyframes `a < b`.
+#[derive(Debug, Clone)]
+pub struct Constraint {
+    pub a: usize,
+    pub b: usize,
+    pub relative: Pose,
+    pub kind: ConstraintKind,
+    /// PnP inliers that verified it (0 for an unverified odometry edge).
+    pub inliers: usize,
+    /// Inlier keypoint pairs `(keypoint of a, keypoint of b)` (local correction).
+    pub matches: Vec<(u32, u32)>,
+}
+
+/// Keyframes and constraints.
+#[derive(Debug, Clone, Default)]
+pub struct Map {
+    pub keyframes: Vec<KeyFrame>,
+    pub constraints: Vec<Constraint>,
+    /// Incremented every time the poses are corrected.
+    pub epoch: u64,
+}
+
+impl Map {
+    /// Camera centres of the keyframes (current estimates).
+    pub fn centres(&self) -> Vec<Point3<f64>> {
+        self.keyframes
+            .iter()
+            .map(|k| Point3::from(k.pose.translation.vector))
+            .collect()
+    }
+
+    /// Number of constraints that are not odometry.
+    pub fn loop_constraints(&self) -> usize {
+        self.constraints
+            .iter()
+            .filter(|c| c.kind != ConstraintKind::Odometry)
+            .count()
+    }
+}
+
+/// The map shared by the threads.
+pub type SharedMap = Arc<RwLock<Map>>;
+
+/// Reads the shared map (a panic in another thread does not make it unreadable).
+pub fn read(map: &SharedMap) -> RwLockReadGuard<'_, Map> {
+    map.read().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Writes the shared map.
+pub fn write(map: &SharedMap) -> RwLockWriteGuard<'_, Map> {
+    map.write().unwrap_or_else(|e| e.into_inner())
+}

@@ -1,0 +1,31 @@
+//! The SDF-SLAM system (section IV, Fig. 1), split like ORB-SLAM3 around a
+//! shared [`map::Map`]:
+//!
+//! * [`tracking`] — camera pose estimation (IV-B): keypoints ([`keypoints`]:
+//!   FPFDCNN or ORB), range matching (eq 8), PnP + RANSAC (eqs 9-10),
+//!   keyframes, relocalisation;
+//! * mapping ([`system::LocalMapper`]) — semantics and depth of keyframes
+//!   ([`semantic_source`]: SDFCNN, ground truth or none) fused into the 3D
+//!   semantic map ([`semantic_map`], IV-C);
+//! * [`correction`] — data correction (IV-A): keyframe-pair constraints and a
+//!   pose graph ([`pose_graph`]), plus local unification of matched points;
+//! * [`system`] — the three stages as threads passing messages, or in order on
+//!   one thread; [`report`] — trajectories, PLY map, pictures, ATE/RPE and
+//!   Table 11 accuracy; [`config`] — every tunable.
+
+pub mod classes;
+pub mod config;
+pub mod correction;
+pub mod keypoints;
+pub mod map;
+pub mod pose_graph;
+pub mod report;
+pub mod semantic_map;
+pub mod semantic_source;
+pub mod system;
+pub mod tracking;
+
+pub use config::SlamConfig;
+pub use keypoints::{FpfdcnnSource, KeyFeatures, KeypointSource, OrbSource};
+pub use semantic_source::{GroundTruthSource, NoLabels, SemanticInput, SemanticSource};
+pub use system::{Control, DepthMode, Slam, SlamOutput};

@@ -1,0 +1,519 @@
+//! Pose-graph optimisation over SE(3) for global data correction (section
+//! IV-A): one 6-dof pose per keyframe (the first fixed), relative-pose edges
+//! (odometry and loop constraints), robust (Huber / Cauchy) Levenberg-Marquardt
+//! on block-sparse normal equations with nalgebra.
+//!
+//! Poses are camera-to-world and perturbed on the right, `T ← T exp(δ)` with
+//! `δ = (ρ, φ)` (translation first). The error of an edge `(i, j, Z)` is
+//! `e = log(Z⁻¹ T_i⁻¹ T_j)`, with Jacobians `∂e/∂δ_j = J_r⁻¹(e)` and
+//! `∂e/∂δ_i = −J_r⁻¹(e) Ad(T_j⁻¹ T_i)`, `J_r⁻¹(e) ≈ I + ½ ad(e)` (Barfoot,
+//! "State Estimation for Robotics", 2017, ch. 7).
+
+use super::config::RobustKernel;
+use crate::geometry::Pose;
+use nalgebra::{
+    DMatrix, DVector, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6,
+};
+use std::collections::BTreeMap;
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// `exp` of `ξ = (ρ, φ)`.
+pub fn se3_exp(xi: &Vector6<f64>) -> Pose {
+    let rho = Vector3::new(xi[0], xi[1], xi[2]);
+    let phi = Vector3::new(xi[3], xi[4], xi[5]);
+    let theta = phi.norm();
+    let k = skew(&phi);
+    let v = if theta < 1e-6 {
+        Matrix3::identity() + 0.5 * k + k * k / 6.0
+    } else {
+        let t2 = theta * theta;
+        Matrix3::identity()
+            + (1.0 - theta.cos()) / t2 * k
+            + (theta - theta.sin()) / (t2 * theta) * k * k
+    };
+    Pose::from_parts(
+        Translation3::from(v * rho),
+        UnitQuaternion::from_scaled_axis(phi),
+    )
+}
+
+/// `log` of a pose as `(ρ, φ)`.
+pub fn se3_log(t: &Pose) -> Vector6<f64> {
+    let phi = t.rotation.scaled_axis();
+    let theta = phi.norm();
+    let k = skew(&phi);
+    let c = if theta < 1e-6 {
+        1.0 / 12.0
+    } else {
+        (1.0 - theta * theta.sin() / (2.0 * (1.0 - theta.cos()))) / (theta * theta)
+    };
+    let v_inv = Matrix3::identity() - 0.5 * k + c * k * k;
+    let rho = v_inv * t.translation.vector;
+    Vector6::new(rho.x, rho.y, rho.z, phi.x, phi.y, phi.z)
+}
+
+/// Adjoint of a pose for `(ρ, φ)` twists.
+fn adjoint(t: &Pose) -> Matrix6<f64> {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    let mut a = Matrix6::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    a.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    a.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(skew(&t.translation.vector) * r));
+    a
+}
+
+/// `J_r⁻¹(e) ≈ I + ½ ad(e)`.
+fn jr_inv(e: &Vector6<f64>) -> Matrix6<f64> {
+    let rho = Vector3::new(e[0], e[1], e[2]);
+    let phi = Vector3::new(e[3], e[4], e[5]);
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&skew(&phi));
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&skew(&phi));
+    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&skew(&rho));
+    Matrix6::identity() + 0.5 * ad
+}
+
+/// An edge: measured `Z = T_i⁻¹ T_j` with a diagonal information.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Edge {
+    pub i: usize,
+    pub j: usize,
+    pub measurement: Pose,
+    /// Information (inverse variances) of `(ρ, φ)`.
+    pub information: Vector6<f64>,
+}
+
+/// Solver settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LmSettings {
+    pub iterations: usize,
+    pub kernel: RobustKernel,
+    /// Kernel scale on the whitened error norm.
+    pub delta: f64,
+    /// Dense Cholesky up to this many variables, block-Jacobi preconditioned
+    /// conjugate gradients above.
+    pub dense_limit: usize,
+}
+
+impl Default for LmSettings {
+    fn default() -> Self {
+        LmSettings {
+            iterations: 30,
+            kernel: RobustKernel::Huber,
+            delta: 3.0,
+            dense_limit: 1800,
+        }
+    }
+}
+
+/// What the optimisation did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LmSummary {
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    pub iterations: usize,
+}
+
+/// Robust cost of a squared whitened error and its IRLS weight.
+fn robust(kernel: RobustKernel, delta: f64, r2: f64) -> (f64, f64) {
+    match kernel {
+        RobustKernel::None => (r2, 1.0),
+        RobustKernel::Huber => {
+            let r = r2.sqrt();
+            if r <= delta {
+                (r2, 1.0)
+            } else {
+                (2.0 * delta * r - delta * delta, delta / r)
+            }
+        }
+        RobustKernel::Cauchy => {
+            let d2 = delta * delta;
+            (d2 * (1.0 + r2 / d2).ln(), 1.0 / (1.0 + r2 / d2))
+        }
+    }
+}
+
+fn edge_error(poses: &[Pose], e: &Edge) -> Vector6<f64> {
+    se3_log(&(e.measurement.inverse() * poses[e.i].inverse() * poses[e.j]))
+}
+
+fn whitened2(err: &Vector6<f64>, info: &Vector6<f64>) -> f64 {
+    err.component_mul(err).dot(info)
+}
+
+/// Total robust cost.
+pub fn cost(poses: &[Pose], edges: &[Edge], settings: &LmSettings) -> f64 {
+    edges
+        .iter()
+        .map(|e| {
+            robust(
+                settings.kernel,
+                settings.delta,
+                whitened2(&edge_error(poses, e), &e.information),
+            )
+            .0
+        })
+        .sum()
+}
+
+/// Block-sparse normal equations over the free poses (index `k - 1` for pose `k`).
+struct Normal {
+    n: usize,
+    diag: Vec<Matrix6<f64>>,
+    off: BTreeMap<(usize, usize), Matrix6<f64>>,
+    g: Vec<Vector6<f64>>,
+}
+
+impl Normal {
+    fn build(poses: &[Pose], edges: &[Edge], s: &LmSettings) -> Self {
+        let n = poses.len() - 1;
+        let mut nq = Normal {
+            n,
+            diag: vec![Matrix6::zeros(); n],
+            off: BTreeMap::new(),
+            g: vec![Vector6::zeros(); n],
+        };
+        for e in edges {
+            let err = edge_error(poses, e);
+            let (_, w) = robust(s.kernel, s.delta, whitened2(&err, &e.information));
+            let omega = Matrix6::from_diagonal(&(e.information * w));
+            let jr = jr_inv(&err);
+            let jj = jr;
+            let ji = -jr * adjoint(&(poses[e.j].inverse() * poses[e.i]));
+            let vars = [(e.i, ji), (e.j, jj)];
+            for (a, ja) in vars {
+                if a == 0 {
+                    continue;
+                }
+                nq.g[a - 1] += ja.transpose() * omega * err;
+                for (b, jb) in vars {
+                    if b == 0 {
+                        continue;
+                    }
+                    let block = ja.transpose() * omega * jb;
+                    if a == b {
+                        nq.diag[a - 1] += block;
+                    } else if a < b {
+                        *nq.off.entry((a - 1, b - 1)).or_insert_with(Matrix6::zeros) += block;
+                    }
+                }
+            }
+        }
+        nq
+    }
+
+    /// `(H + λ diag(H)) x`.
+    fn apply(&self, lambda: f64, x: &[Vector6<f64>]) -> Vec<Vector6<f64>> {
+        let mut y: Vec<Vector6<f64>> = (0..self.n)
+            .map(|k| {
+                let d = &self.diag[k];
+                let damp = Vector6::from_fn(|r, _| lambda * d[(r, r)].max(1e-9));
+                d * x[k] + damp.component_mul(&x[k])
+            })
+            .collect();
+        for (&(a, b), m) in &self.off {
+            y[a] += m * x[b];
+            y[b] += m.transpose() * x[a];
+        }
+        y
+    }
+
+    fn damped_diag(&self, lambda: f64, k: usize) -> Matrix6<f64> {
+        let mut d = self.diag[k];
+        for r in 0..6 {
+            d[(r, r)] += lambda * d[(r, r)].max(1e-9);
+        }
+        d
+    }
+
+    /// Solves `(H + λ diag H) δ = −g`.
+    fn solve(&self, lambda: f64, dense_limit: usize) -> Option<Vec<Vector6<f64>>> {
+        let dim = 6 * self.n;
+        if dim <= dense_limit {
+            let mut h = DMatrix::<f64>::zeros(dim, dim);
+            for k in 0..self.n {
+                h.view_mut((6 * k, 6 * k), (6, 6))
+                    .copy_from(&self.damped_diag(lambda, k));
+            }
+            for (&(a, b), m) in &self.off {
+                h.view_mut((6 * a, 6 * b), (6, 6)).copy_from(m);
+                h.view_mut((6 * b, 6 * a), (6, 6)).copy_from(&m.transpose());
+            }
+            let g = DVector::from_iterator(dim, self.g.iter().flat_map(|v| v.iter().map(|x| -x)));
+            let x = h.cholesky()?.solve(&g);
+            Some(
+                (0..self.n)
+                    .map(|k| Vector6::from_fn(|r, _| x[6 * k + r]))
+                    .collect(),
+            )
+        } else {
+            self.pcg(lambda)
+        }
+    }
+
+    /// Block-Jacobi preconditioned conjugate gradients.
+    fn pcg(&self, lambda: f64) -> Option<Vec<Vector6<f64>>> {
+        let pre: Vec<Matrix6<f64>> = (0..self.n)
+            .map(|k| self.damped_diag(lambda, k).try_inverse())
+            .collect::<Option<_>>()?;
+        let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| -> f64 {
+            a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
+        };
+        let b: Vec<Vector6<f64>> = self.g.iter().map(|v| -v).collect();
+        let mut x = vec![Vector6::zeros(); self.n];
+        let mut r = b.clone();
+        let mut z: Vec<Vector6<f64>> = r.iter().zip(&pre).map(|(v, p)| p * v).collect();
+        let mut p = z.clone();
+        let mut rz = dot(&r, &z);
+        let b_norm = dot(&b, &b).sqrt().max(1e-300);
+        for _ in 0..(10 * 6 * self.n).max(100) {
+            let ap = self.apply(lambda, &p);
+            let pap = dot(&p, &ap);
+            if pap <= 0.0 || !pap.is_finite() {
+                break;
+            }
+            let alpha = rz / pap;
+            for k in 0..self.n {
+                x[k] += alpha * p[k];
+                r[k] -= alpha * ap[k];
+            }
+            if dot(&r, &r).sqrt() < 1e-10 * b_norm {
+                break;
+            }
+            z = r.iter().zip(&pre).map(|(v, q)| q * v).collect();
+            let rz_new = dot(&r, &z);
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for k in 0..self.n {
+                p[k] = z[k] + beta * p[k];
+            }
+        }
+        x.iter()
+            .all(|v| v.iter().all(|c| c.is_finite()))
+            .then_some(x)
+    }
+}
+
+/// Optimises `poses` in place (pose 0 fixed) over `edges`.
+pub fn optimise(poses: &mut [Pose], edges: &[Edge], settings: &LmSettings) -> LmSummary {
+    let initial_cost = cost(poses, edges, settings);
+    let mut summary = LmSummary {
+        initial_cost,
+        final_cost: initial_cost,
+        iterations: 0,
+    };
+    if poses.len() < 2 || edges.is_empty() {
+        return summary;
+    }
+    let mut current = initial_cost;
+    let mut lambda = 1e-4;
+    for it in 0..settings.iterations {
+        let nq = Normal::build(poses, edges, settings);
+        let mut improved = false;
+        for _ in 0..10 {
+            let Some(step) = nq.solve(lambda, settings.dense_limit) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let candidate: Vec<Pose> = poses
+                .iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    if k == 0 {
+                        *p
+                    } else {
+                        p * se3_exp(&step[k - 1])
+                    }
+                })
+                .collect();
+            let c = cost(&candidate, edges, settings);
+            if c < current {
+                let small = current - c <= 1e-10 * current.max(1e-300);
+                poses.copy_from_slice(&candidate);
+                current = c;
+                lambda = (lambda / 3.0).max(1e-12);
+                improved = !small;
+                break;
+            }
+            lambda *= 5.0;
+        }
+        summary.iterations = it + 1;
+        if !improved {
+            break;
+        }
+    }
+    summary.final_cost = current;
+    summary
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn exp_log_round_trip() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..50 {
+            let xi = Vector6::from_fn(|_, _| rng.random_range(-1.0..1.0));
+            let back = se3_log(&se3_exp(&xi));
+            assert!((back - xi).norm() < 1e-9, "{xi} -> {back}");
+        }
+        let tiny = Vector6::new(1e-3, 0.0, 2e-3, 1e-9, 0.0, 0.0);
+        assert!((se3_log(&se3_exp(&tiny)) - tiny).norm() < 1e-12);
+    }
+
+    #[test]
+    fn jacobians_match_finite_differences() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let rnd = |rng: &mut ChaCha8Rng, s: f64| {
+            se3_exp(&Vector6::from_fn(|_, _| rng.random_range(-s..s)))
+        };
+        let poses = vec![rnd(&mut rng, 1.0), rnd(&mut rng, 1.0)];
+        let z = poses[0].inverse() * poses[1] * rnd(&mut rng, 0.05);
+        let edge = Edge {
+            i: 0,
+            j: 1,
+            measurement: z,
+            information: Vector6::repeat(1.0),
+        };
+        let err = edge_error(&poses, &edge);
+        let jj = jr_inv(&err);
+        let ji = -jj * adjoint(&(poses[1].inverse() * poses[0]));
+        let h = 1e-6;
+        for k in 0..6 {
+            let mut d = Vector6::zeros();
+            d[k] = h;
+            let mut p = poses.clone();
+            p[1] *= se3_exp(&d);
+            let num_j = (edge_error(&p, &edge) - err) / h;
+            assert!((num_j - jj.column(k)).norm() < 2e-3, "d/dj col {k}");
+            let mut p = poses.clone();
+            p[0] *= se3_exp(&d);
+            let num_i = (edge_error(&p, &edge) - err) / h;
+            assert!((num_i - ji.column(k)).norm() < 2e-3, "d/di col {k}");
+        }
+    }
+
+    /// A square loop of poses with drifting odometry and one exact loop edge:
+    /// the optimised poses are much closer to the truth than the drifted ones.
+    fn loop_case(dense_limit: usize) {
+        let n = 24;
+        let truth: Vec<Pose> = (0..n)
+            .map(|k| {
+                let a = k as f64 / n as f64 * std::f64::consts::TAU;
+                Pose::from_parts(
+                    Translation3::new(2.0 * a.cos(), 2.0 * a.sin(), 0.1 * (3.0 * a).sin()),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, a + 1.0),
+                )
+            })
+            .collect();
+        let drift = se3_exp(&Vector6::new(0.01, -0.005, 0.004, 0.002, -0.003, 0.006));
+        let info = Vector6::new(1e4, 1e4, 1e4, 1e4, 1e4, 1e4);
+        let mut edges = Vec::new();
+        let mut drifted = vec![truth[0]];
+        for k in 1..n {
+            let z = truth[k - 1].inverse() * truth[k] * drift;
+            drifted.push(drifted[k - 1] * z);
+            edges.push(Edge {
+                i: k - 1,
+                j: k,
+                measurement: z,
+                information: info,
+            });
+        }
+        edges.push(Edge {
+            i: 0,
+            j: n - 1,
+            measurement: truth[0].inverse() * truth[n - 1],
+            information: info,
+        });
+        let err = |p: &[Pose]| -> f64 {
+            p.iter()
+                .zip(&truth)
+                .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
+                .sum::<f64>()
+                / n as f64
+        };
+        let before = err(&drifted);
+        let mut poses = drifted.clone();
+        let s = optimise(
+            &mut poses,
+            &edges,
+            &LmSettings {
+                dense_limit,
+                ..Default::default()
+            },
+        );
+        let after = err(&poses);
+        let end =
+            |p: &[Pose]| (p[n - 1].translation.vector - truth[n - 1].translation.vector).norm();
+        // The drift is systematic, so the optimum spreads the loop's error over
+        // the chain: the closing pose is nearly exact, the middle improves less
+        // (measured: mean 0.136 -> 0.053 m).
+        assert!(s.final_cost < 0.1 * s.initial_cost, "{s:?}");
+        assert!(
+            after < before / 2.0,
+            "mean position error {before} -> {after}"
+        );
+        let (e0, e1) = (end(&drifted), end(&poses));
+        assert!(e1 < e0 / 10.0, "closing pose error {e0} -> {e1}");
+        assert!(s.iterations < 30, "LM converged: {s:?}");
+        assert_eq!(poses[0], truth[0]);
+    }
+
+    #[test]
+    fn lm_recovers_a_loop_dense() {
+        loop_case(10_000);
+    }
+
+    #[test]
+    fn lm_recovers_a_loop_pcg() {
+        loop_case(0);
+    }
+
+    #[test]
+    fn robust_kernel_downweights_a_false_loop() {
+        let n = 10;
+        let truth: Vec<Pose> = (0..n)
+            .map(|k| Pose::translation(0.1 * k as f64, 0.0, 0.0))
+            .collect();
+        let info = Vector6::repeat(1e4);
+        let mut edges: Vec<Edge> = (1..n)
+            .map(|k| Edge {
+                i: k - 1,
+                j: k,
+                measurement: truth[k - 1].inverse() * truth[k],
+                information: info,
+            })
+            .collect();
+        // A wrong loop claiming the last pose is 0.5 m off.
+        edges.push(Edge {
+            i: 0,
+            j: n - 1,
+            measurement: Pose::translation(0.4, 0.0, 0.0),
+            information: info,
+        });
+        let mut poses = truth.clone();
+        optimise(
+            &mut poses,
+            &edges,
+            &LmSettings {
+                kernel: RobustKernel::Cauchy,
+                delta: 1.0,
+                ..Default::default()
+            },
+        );
+        let worst = poses
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
+            .fold(0.0, f64::max);
+        assert!(worst < 0.05, "{worst}");
+    }
+}

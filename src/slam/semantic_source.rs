@@ -1,0 +1,179 @@
+//! Where a keyframe's semantic labels (and, in monocular mode, its depth) come
+//! from (section IV-C step 1). SDFCNN predicts both from the RGB image; until
+//! its inference lands, the sources are the ground-truth labels of a synthetic
+//! sequence and "none". An SDFCNN source only has to implement
+//! [`SemanticSource`] with `predict` returning `(labels, Some(depth))` of
+//! `input.rgb`.
+
+use crate::dataset::{DepthImage, LabelImage};
+use crate::error::{Error, Result};
+use crate::io::{parse_f64, read_text, records};
+use image::RgbImage;
+use std::path::{Path, PathBuf};
+
+/// What a source sees of a keyframe: the RGB image, and the frame's identity
+/// for sources that read per-frame files (ground truth).
+#[derive(Debug, Clone, Copy)]
+pub struct SemanticInput<'a> {
+    pub index: usize,
+    pub stamp: f64,
+    pub rgb: &'a RgbImage,
+}
+
+/// Labels (NYU40, 0-based, 255 = void) and optionally metric depth for an image.
+pub trait SemanticSource: Send {
+    /// Short name for reports.
+    fn name(&self) -> &'static str;
+    /// Whether `predict` returns depth (required by monocular mode).
+    fn provides_depth(&self) -> bool;
+    /// Labels and depth, both at the RGB image's size.
+    fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)>;
+}
+
+/// No semantics: every pixel void, the map is coloured by RGB only.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoLabels;
+
+impl SemanticSource for NoLabels {
+    fn name(&self) -> &'static str {
+        "none"
+    }
+
+    fn provides_depth(&self) -> bool {
+        false
+    }
+
+    fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
+        let (w, h) = input.rgb.dimensions();
+        Ok((LabelImage::new(w, h, crate::dataset::labels::VOID), None))
+    }
+}
+
+/// A `timestamp filename` list of a sequence folder, searchable by stamp.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StampedFiles {
+    pub list: PathBuf,
+    pub entries: Vec<(f64, PathBuf)>,
+}
+
+impl StampedFiles {
+    /// Reads `root/<name>`; `None` when the file does not exist.
+    pub fn open(root: &Path, name: &str) -> Result<Option<Self>> {
+        let list = root.join(name);
+        if !list.is_file() {
+            return Ok(None);
+        }
+        let text = read_text(&list)?;
+        let mut entries: Vec<(f64, PathBuf)> = Vec::new();
+        for rec in records(&text) {
+            if rec.fields.len() < 2 {
+                return Err(Error::parse(
+                    &list,
+                    rec.line,
+                    "expected 'timestamp filename'",
+                ));
+            }
+            let t = parse_f64(&list, rec.line, "timestamp", rec.fields[0])?;
+            entries.push((t, root.join(rec.fields[1])));
+        }
+        entries.sort_by(|a, b| a.0.total_cmp(&b.0));
+        Ok(Some(StampedFiles { list, entries }))
+    }
+
+    /// The file whose stamp is nearest to `stamp`, within `max_diff` seconds.
+    pub fn nearest(&self, stamp: f64, max_diff: f64) -> Option<&Path> {
+        let k = self.entries.partition_point(|e| e.0 < stamp);
+        [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter_map(|i| self.entries.get(i))
+            .filter(|e| (e.0 - stamp).abs() <= max_diff)
+            .min_by(|a, b| (a.0 - stamp).abs().total_cmp(&(b.0 - stamp).abs()))
+            .map(|e| e.1.as_path())
+    }
+}
+
+/// Ground-truth labels of a synthetic sequence (`labels.txt` + `labels/`), and
+/// its exact depth (`depth_gt.txt` + `depth_gt/`) when present, as a "perfect
+/// SDFCNN" for testing the monocular path.
+#[derive(Debug, Clone)]
+pub struct GroundTruthSource {
+    pub labels: StampedFiles,
+    pub depth: Option<StampedFiles>,
+    pub depth_scale: f64,
+    pub max_diff: f64,
+}
+
+impl GroundTruthSource {
+    /// Opens a sequence folder's label list; an error when it has none.
+    pub fn open(root: &Path, depth_scale: f64) -> Result<Self> {
+        let labels = StampedFiles::open(root, "labels.txt")?.ok_or_else(|| {
+            Error::invalid(
+                root,
+                "no labels.txt: ground-truth labels (--labels gt) need a synthetic sequence with labels/",
+            )
+        })?;
+        Ok(GroundTruthSource {
+            labels,
+            depth: StampedFiles::open(root, "depth_gt.txt")?,
+            depth_scale,
+            max_diff: 0.02,
+        })
+    }
+
+    /// The label image of a stamp.
+    pub fn labels_at(&self, stamp: f64) -> Result<LabelImage> {
+        let path = self.labels.nearest(stamp, self.max_diff).ok_or_else(|| {
+            Error::invalid(
+                &self.labels.list,
+                format!("no label image within {} s of {stamp:.6}", self.max_diff),
+            )
+        })?;
+        LabelImage::read_png(path)
+    }
+
+    /// The exact depth of a stamp, if the sequence has exact depth.
+    pub fn depth_at(&self, stamp: f64) -> Result<Option<DepthImage>> {
+        let Some(list) = &self.depth else {
+            return Ok(None);
+        };
+        let path = list.nearest(stamp, self.max_diff).ok_or_else(|| {
+            Error::invalid(
+                &list.list,
+                format!("no depth image within {} s of {stamp:.6}", self.max_diff),
+            )
+        })?;
+        DepthImage::read_png(path, self.depth_scale).map(Some)
+    }
+}
+
+impl SemanticSource for GroundTruthSource {
+    fn name(&self) -> &'static str {
+        "gt"
+    }
+
+    fn provides_depth(&self) -> bool {
+        self.depth.is_some()
+    }
+
+    fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
+        let labels = self.labels_at(input.stamp)?;
+        let size = input.rgb.dimensions();
+        if (labels.width, labels.height) != size {
+            return Err(Error::msg(format!(
+                "frame {}: label image is {}x{} but the RGB image is {}x{}",
+                input.index, labels.width, labels.height, size.0, size.1
+            )));
+        }
+        let depth = self.depth_at(input.stamp)?;
+        if let Some(d) = &depth
+            && (d.width, d.height) != size
+        {
+            return Err(Error::msg(format!(
+                "frame {}: exact depth image is {}x{} but the RGB image is {}x{}",
+                input.index, d.width, d.height, size.0, size.1
+            )));
+        }
+        Ok((labels, depth))
+    }
+}

@@ -1,0 +1,687 @@
+//! The SDF-SLAM system (section IV-A, Fig. 1): tracking (camera pose
+//! estimation), mapping (SDFCNN semantics + fusion into the 3D semantic map) and
+//! data correction run as separate threads passing messages over channels
+//! around the shared [`Map`]; or, for tests, the same stages in order on one
+//! thread. Both orders give the same trajectory and map: tracking never reads
+//! corrected poses, correction candidates depend only on earlier keyframes, and
+//! the final pose graph is solved from the tracked poses with all constraints.
+
+use super::config::SlamConfig;
+use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
+use super::keypoints::KeypointSource;
+use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
+use super::semantic_map::SemanticMap;
+use super::semantic_source::{SemanticInput, SemanticSource};
+use super::tracking::{
+    FrameRecord, FrameStatus, NewKeyframe, TrackInput, Tracker, TrackingCounters,
+};
+use crate::camera::Camera;
+use crate::dataset::{DepthImage, LabelImage, TumSequence};
+use crate::error::{Error, Result};
+use crate::features::orb::rgb_to_gray;
+use crate::geometry::Pose;
+use crate::trajectory::Trajectory;
+use image::RgbImage;
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{channel, sync_channel};
+use std::sync::{Arc, RwLock};
+use std::time::Instant;
+
+/// Where depth comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DepthMode {
+    /// RGB-D: the sequence's depth images.
+    Sensor,
+    /// Monocular: depth predicted by the semantic source (SDFCNN).
+    Predicted,
+}
+
+/// A message sink for warnings and events (the progress bar prints them
+/// without breaking its line).
+pub type Log = Arc<dyn Fn(&str) + Send + Sync>;
+
+/// A log that prints to standard error.
+pub fn stderr_log() -> Log {
+    Arc::new(|m: &str| eprintln!("{m}"))
+}
+
+/// Time spent in a stage.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTime {
+    pub seconds: f64,
+    pub calls: usize,
+}
+
+impl StageTime {
+    pub fn add(&mut self, since: Instant) {
+        self.seconds += since.elapsed().as_secs_f64();
+        self.calls += 1;
+    }
+
+    /// Calls per second of stage time.
+    pub fn rate(&self) -> f64 {
+        if self.seconds > 0.0 {
+            self.calls as f64 / self.seconds
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Time per stage.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timings {
+    /// Decoding images.
+    pub load: StageTime,
+    /// Keypoints and descriptors (FPFDCNN or ORB).
+    pub features: StageTime,
+    /// Matching, PnP, keyframe decision.
+    pub tracking: StageTime,
+    /// Semantic source (SDFCNN) per keyframe.
+    pub semantics: StageTime,
+    /// Fusion into the voxel map (including re-fusions).
+    pub fusion: StageTime,
+    /// Keyframe-pair verification.
+    pub correction: StageTime,
+    /// Pose-graph optimisations.
+    pub optimisation: StageTime,
+    /// Final optimisation, local correction and re-fusion.
+    pub finalisation: StageTime,
+}
+
+impl Timings {
+    /// `(name, time)` of every stage.
+    pub fn stages(&self) -> [(&'static str, StageTime); 8] {
+        [
+            ("load", self.load),
+            ("features", self.features),
+            ("tracking", self.tracking),
+            ("semantics", self.semantics),
+            ("fusion", self.fusion),
+            ("correction", self.correction),
+            ("optimisation", self.optimisation),
+            ("finalisation", self.finalisation),
+        ]
+    }
+}
+
+/// Progress after a frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    pub done: usize,
+    pub total: usize,
+    pub keyframes: usize,
+    pub lost: usize,
+}
+
+/// Called after every frame.
+pub type FrameCallback = Box<dyn FnMut(&FrameRecord, &Progress)>;
+
+/// How a run is observed and stopped.
+pub struct Control {
+    /// Set it (Ctrl-C) to stop after the current frame; what was tracked is kept.
+    pub stop: Arc<AtomicBool>,
+    pub log: Log,
+    /// Called on the calling thread after every frame.
+    pub on_frame: Option<FrameCallback>,
+}
+
+impl Default for Control {
+    fn default() -> Self {
+        Control {
+            stop: Arc::new(AtomicBool::new(false)),
+            log: stderr_log(),
+            on_frame: None,
+        }
+    }
+}
+
+/// Everything a run needs.
+pub struct Slam {
+    pub sequence: TumSequence,
+    pub camera: Camera,
+    pub config: SlamConfig,
+    pub depth: DepthMode,
+    pub keypoints: Box<dyn KeypointSource>,
+    pub semantics: Box<dyn SemanticSource>,
+    /// Process at most this many frames.
+    pub max_frames: Option<usize>,
+}
+
+/// What a run produced.
+pub struct SlamOutput {
+    pub frames: Vec<FrameRecord>,
+    pub map: Map,
+    pub semantic_map: SemanticMap,
+    /// Unified world points of local correction.
+    pub landmarks: Vec<Point3<f64>>,
+    pub local: LocalSummary,
+    pub tracking: TrackingCounters,
+    pub correction: CorrectionStats,
+    /// Frames that could not be read, with the reason.
+    pub skipped: Vec<(usize, String)>,
+    /// Keyframes whose semantic source failed (void labels used).
+    pub semantic_failures: Vec<(usize, String)>,
+    pub timings: Timings,
+    pub wall_seconds: f64,
+    pub interrupted: bool,
+    /// Frames the run was asked to process.
+    pub total_frames: usize,
+    pub threads: bool,
+    pub depth: DepthMode,
+    pub keypoint_source: &'static str,
+    pub semantic_source: &'static str,
+}
+
+impl SlamOutput {
+    /// Final pose of a frame: its reference keyframe's corrected pose composed
+    /// with the tracked relative pose.
+    pub fn frame_pose(&self, r: &FrameRecord) -> Pose {
+        match r.reference.and_then(|k| self.map.keyframes.get(k)) {
+            Some(kf) => kf.pose * r.relative,
+            None => r.odom_pose,
+        }
+    }
+
+    /// Every processed frame, TUM convention.
+    pub fn trajectory(&self) -> Trajectory {
+        Trajectory {
+            stamps: self.frames.iter().map(|r| r.stamp).collect(),
+            poses: self.frames.iter().map(|r| self.frame_pose(r)).collect(),
+        }
+    }
+
+    /// The keyframes' corrected poses.
+    pub fn keyframe_trajectory(&self) -> Trajectory {
+        Trajectory {
+            stamps: self.map.keyframes.iter().map(|k| k.stamp).collect(),
+            poses: self.map.keyframes.iter().map(|k| k.pose).collect(),
+        }
+    }
+
+    /// Frames per second over the whole run.
+    pub fn fps(&self) -> f64 {
+        if self.wall_seconds > 0.0 {
+            self.frames.len() as f64 / self.wall_seconds
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A keyframe on its way to mapping, with its full-resolution images.
+pub struct MapperInput {
+    pub keyframe: NewKeyframe,
+    pub rgb: RgbImage,
+    /// Sensor depth (RGB-D).
+    pub depth: Option<DepthImage>,
+}
+
+/// The mapping stage: semantics of each keyframe, insertion into the map,
+/// fusion into the voxel grid (re-fused when correction moved the poses).
+pub struct LocalMapper {
+    cfg: SlamConfig,
+    camera: Camera,
+    monocular: bool,
+    semantics: Box<dyn SemanticSource>,
+    map: SharedMap,
+    log: Log,
+    pub semantic_map: SemanticMap,
+    fused_epoch: u64,
+    pub failures: Vec<(usize, String)>,
+    pub semantics_time: StageTime,
+    pub fusion_time: StageTime,
+}
+
+impl LocalMapper {
+    pub fn new(
+        cfg: SlamConfig,
+        camera: Camera,
+        monocular: bool,
+        semantics: Box<dyn SemanticSource>,
+        map: SharedMap,
+        log: Log,
+    ) -> Self {
+        let voxel = cfg.map.voxel_size;
+        LocalMapper {
+            cfg,
+            camera,
+            monocular,
+            semantics,
+            map,
+            log,
+            semantic_map: SemanticMap::new(voxel),
+            fused_epoch: 0,
+            failures: Vec::new(),
+            semantics_time: StageTime::default(),
+            fusion_time: StageTime::default(),
+        }
+    }
+
+    /// Processes a keyframe; returns its features with 3D points from the
+    /// depth used (predicted in monocular mode), for tracking.
+    pub fn process(&mut self, input: MapperInput) -> Arc<KeyframeFeatures> {
+        let kf = input.keyframe;
+        let (w, h) = input.rgb.dimensions();
+        let t = Instant::now();
+        let sem = SemanticInput {
+            index: kf.frame_index,
+            stamp: kf.stamp,
+            rgb: &input.rgb,
+        };
+        let (labels, predicted) = match self.semantics.predict(&sem) {
+            Ok(r) => r,
+            Err(e) => {
+                let msg = e.to_string();
+                (self.log)(&format!(
+                    "warning: keyframe {} (frame {}): {} labels failed: {msg}; using void labels",
+                    kf.id,
+                    kf.frame_index,
+                    self.semantics.name()
+                ));
+                self.failures.push((kf.frame_index, msg));
+                (LabelImage::new(w, h, crate::dataset::labels::VOID), None)
+            }
+        };
+        self.semantics_time.add(t);
+        let t = Instant::now();
+        let depth = if self.monocular {
+            predicted
+        } else {
+            input.depth
+        };
+        let depth = depth.unwrap_or_else(|| DepthImage::new(w, h));
+        let track = if self.monocular {
+            Arc::new(KeyframeFeatures::new(
+                kf.track.features.clone(),
+                Some(&depth),
+                &self.camera,
+                (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth),
+            ))
+        } else {
+            kf.track.clone()
+        };
+        let view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
+        {
+            let mut m = write(&self.map);
+            // Follow the corrections made so far.
+            let pose = match m.keyframes.last() {
+                Some(last) => last.pose * last.odom_pose.inverse() * kf.pose,
+                None => kf.pose,
+            };
+            m.keyframes.push(KeyFrame {
+                id: kf.id,
+                frame_index: kf.frame_index,
+                stamp: kf.stamp,
+                odom_pose: kf.pose,
+                pose,
+                gt_pose: kf.gt_pose,
+                track: track.clone(),
+                view,
+                depth_scale: 1.0,
+            });
+        }
+        let epoch = read(&self.map).epoch;
+        if epoch != self.fused_epoch {
+            self.refuse_all();
+        } else {
+            let m = read(&self.map);
+            if let Some(k) = m.keyframes.last() {
+                self.semantic_map
+                    .fuse(k, &k.pose, &self.camera, &self.cfg.map);
+            }
+        }
+        self.fusion_time.add(t);
+        track
+    }
+
+    /// Rebuilds the voxel map from every keyframe's current pose and depth scale.
+    pub fn refuse_all(&mut self) {
+        let m = read(&self.map);
+        self.semantic_map.clear();
+        for k in &m.keyframes {
+            self.semantic_map
+                .fuse(k, &k.pose, &self.camera, &self.cfg.map);
+        }
+        self.fused_epoch = m.epoch;
+    }
+}
+
+/// A decoded frame.
+struct Loaded {
+    rgb: RgbImage,
+    depth: Option<DepthImage>,
+    stamp: f64,
+    gt: Option<Pose>,
+}
+
+fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
+    if monocular {
+        let rgb = seq.load_rgb(i)?;
+        let stamp = seq.frames[i].rgb_stamp;
+        Ok(Loaded {
+            rgb,
+            depth: None,
+            stamp,
+            gt: seq.gt_pose_at(stamp),
+        })
+    } else {
+        let f = seq.load_frame(i)?;
+        Ok(Loaded {
+            rgb: f.rgb,
+            depth: f.depth,
+            stamp: f.stamp,
+            gt: f.gt_pose,
+        })
+    }
+}
+
+/// What the tracking loop produced.
+struct TrackingRun {
+    tracker: Tracker,
+    frames: Vec<FrameRecord>,
+    skipped: Vec<(usize, String)>,
+    load: StageTime,
+    features: StageTime,
+    tracking: StageTime,
+    interrupted: bool,
+}
+
+/// The tracking stage over the frames: load, features, track; keyframes go to
+/// `on_keyframe` (which may answer with predicted-depth 3D points), frames to
+/// `on_frame`.
+#[allow(clippy::too_many_arguments)]
+fn tracking_loop(
+    seq: &TumSequence,
+    n: usize,
+    tracker: Tracker,
+    keypoints: &dyn KeypointSource,
+    monocular: bool,
+    stop: &AtomicBool,
+    log: &Log,
+    mut on_keyframe: impl FnMut(MapperInput) -> Option<Arc<KeyframeFeatures>>,
+    mut on_frame: impl FnMut(&FrameRecord, Progress),
+) -> TrackingRun {
+    let mut run = TrackingRun {
+        tracker,
+        frames: Vec::new(),
+        skipped: Vec::new(),
+        load: StageTime::default(),
+        features: StageTime::default(),
+        tracking: StageTime::default(),
+        interrupted: false,
+    };
+    let tracker = &mut run.tracker;
+    for i in 0..n {
+        if stop.load(Ordering::SeqCst) {
+            run.interrupted = true;
+            break;
+        }
+        let t = Instant::now();
+        let frame = match load(seq, i, monocular) {
+            Ok(f) => f,
+            Err(e) => {
+                log(&format!("warning: frame {i} skipped: {e}"));
+                run.skipped.push((i, e.to_string()));
+                continue;
+            }
+        };
+        run.load.add(t);
+        let t = Instant::now();
+        let features = match keypoints.detect(&rgb_to_gray(&frame.rgb)) {
+            Ok(f) => f,
+            Err(e) => {
+                log(&format!(
+                    "warning: frame {i}: keypoints failed ({e}); no features"
+                ));
+                Default::default()
+            }
+        };
+        run.features.add(t);
+        let t = Instant::now();
+        let out = tracker.track(TrackInput {
+            index: i,
+            stamp: frame.stamp,
+            features,
+            depth: frame.depth.as_ref(),
+            gt_pose: frame.gt,
+        });
+        run.tracking.add(t);
+        for e in &out.events {
+            log(e);
+        }
+        if let Some(kf) = out.keyframe {
+            let id = kf.id;
+            let reply = on_keyframe(MapperInput {
+                keyframe: kf,
+                rgb: frame.rgb,
+                depth: frame.depth,
+            });
+            if let Some(track) = reply {
+                tracker.update_keyframe(id, track);
+            }
+        }
+        let progress = Progress {
+            done: i + 1,
+            total: n,
+            keyframes: tracker.n_keyframes(),
+            lost: tracker.counters.lost.len(),
+        };
+        on_frame(&out.record, progress);
+        run.frames.push(out.record);
+    }
+    run
+}
+
+fn panicked(stage: &str) -> Error {
+    Error::msg(format!("the {stage} thread panicked"))
+}
+
+impl Slam {
+    /// Checks the inputs before any frame is processed.
+    pub fn validate(&self) -> Result<()> {
+        match self.depth {
+            DepthMode::Sensor if !self.sequence.has_depth() => Err(Error::invalid(
+                &self.sequence.root,
+                "RGB-D mode (--depth sensor) needs depth images, but the sequence has no depth.txt / associations.txt; use --depth predicted for monocular mode",
+            )),
+            DepthMode::Predicted if !self.semantics.provides_depth() => Err(Error::msg(format!(
+                "monocular mode (--depth predicted) takes depth from the semantic source, but '{}' gives none: use --labels sdfcnn (or --labels gt on a synthetic sequence with depth_gt/)",
+                self.semantics.name()
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Runs the system over the sequence.
+    pub fn run(self, mut control: Control) -> Result<SlamOutput> {
+        self.validate()?;
+        let started = Instant::now();
+        let Slam {
+            sequence,
+            camera,
+            config,
+            depth,
+            keypoints,
+            semantics,
+            max_frames,
+        } = self;
+        let monocular = depth == DepthMode::Predicted;
+        let n = max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
+        let map: SharedMap = Arc::new(RwLock::new(Map::default()));
+        let keypoint_source = keypoints.name();
+        let semantic_source = semantics.name();
+        let tracker = Tracker::new(config.clone(), camera.clone(), monocular);
+        let mut mapper = LocalMapper::new(
+            config.clone(),
+            camera.clone(),
+            monocular,
+            semantics,
+            map.clone(),
+            control.log.clone(),
+        );
+        let mut corrector = Corrector::new(config.clone(), camera.clone());
+        let mut timings = Timings::default();
+        let online = config.correction.optimise_online;
+        let log = control.log.clone();
+        let stop = control.stop.clone();
+        let mut on_frame = control.on_frame.take();
+        let mut notify = |r: &FrameRecord, p: Progress| {
+            if let Some(f) = on_frame.as_mut() {
+                f(r, &p);
+            }
+        };
+        let run = if config.system.threads {
+            let (run, m, c, corr_time, opt_time) = std::thread::scope(|s| -> Result<_> {
+                let (kf_tx, kf_rx) = sync_channel::<MapperInput>(config.system.queue);
+                let (reply_tx, reply_rx) = channel::<Arc<KeyframeFeatures>>();
+                let (corr_tx, corr_rx) = sync_channel::<usize>(config.system.queue * 4);
+                // Bounded: tracking stays within two frames of the caller, so a
+                // stop request (Ctrl-C) takes effect at once.
+                let (ev_tx, ev_rx) = sync_channel::<(FrameRecord, Progress)>(2);
+                let mapping = s.spawn(move || {
+                    for input in kf_rx {
+                        let id = input.keyframe.id;
+                        let track = mapper.process(input);
+                        if monocular && reply_tx.send(track).is_err() {
+                            break;
+                        }
+                        if corr_tx.send(id).is_err() {
+                            break;
+                        }
+                    }
+                    mapper
+                });
+                let map_c = map.clone();
+                let correction = s.spawn(move || {
+                    let (mut ct, mut ot) = (StageTime::default(), StageTime::default());
+                    for id in corr_rx {
+                        let t = Instant::now();
+                        let loops = corrector.add_keyframe(&map_c, id);
+                        ct.add(t);
+                        if loops && online {
+                            let t = Instant::now();
+                            corrector.optimise(&map_c);
+                            ot.add(t);
+                        }
+                    }
+                    (corrector, ct, ot)
+                });
+                let seq = &sequence;
+                let (stop_t, log_t) = (stop.clone(), log.clone());
+                let tracking = s.spawn(move || {
+                    tracking_loop(
+                        seq,
+                        n,
+                        tracker,
+                        keypoints.as_ref(),
+                        monocular,
+                        &stop_t,
+                        &log_t,
+                        |input| {
+                            kf_tx.send(input).ok()?;
+                            if monocular {
+                                reply_rx.recv().ok()
+                            } else {
+                                None
+                            }
+                        },
+                        |r, p| {
+                            let _ = ev_tx.send((r.clone(), p));
+                        },
+                    )
+                });
+                for (r, p) in ev_rx {
+                    notify(&r, p);
+                }
+                let run = tracking.join().map_err(|_| panicked("tracking"))?;
+                let m = mapping.join().map_err(|_| panicked("mapping"))?;
+                let (c, ct, ot) = correction.join().map_err(|_| panicked("correction"))?;
+                Ok((run, m, c, ct, ot))
+            })?;
+            mapper = m;
+            corrector = c;
+            timings.correction = corr_time;
+            timings.optimisation = opt_time;
+            run
+        } else {
+            let (mut ct, mut ot) = (StageTime::default(), StageTime::default());
+            let run = tracking_loop(
+                &sequence,
+                n,
+                tracker,
+                keypoints.as_ref(),
+                monocular,
+                &stop,
+                &log,
+                |input| {
+                    let id = input.keyframe.id;
+                    let track = mapper.process(input);
+                    let t = Instant::now();
+                    let loops = corrector.add_keyframe(&map, id);
+                    ct.add(t);
+                    if loops && online {
+                        let t = Instant::now();
+                        corrector.optimise(&map);
+                        ot.add(t);
+                    }
+                    monocular.then_some(track)
+                },
+                &mut notify,
+            );
+            timings.correction = ct;
+            timings.optimisation = ot;
+            run
+        };
+        timings.load = run.load;
+        timings.features = run.features;
+        timings.tracking = run.tracking;
+        timings.semantics = mapper.semantics_time;
+        // Final correction from all constraints, local correction, re-fusion.
+        let t = Instant::now();
+        corrector.optimise(&map);
+        let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
+        mapper.refuse_all();
+        timings.finalisation.add(t);
+        timings.fusion = mapper.fusion_time;
+        let LocalMapper {
+            semantic_map,
+            failures,
+            ..
+        } = mapper;
+        let map = std::mem::take(&mut *write(&map));
+        if run.interrupted {
+            log(&format!(
+                "interrupted after {} of {n} frames: writing what was tracked",
+                run.frames.len()
+            ));
+        }
+        Ok(SlamOutput {
+            frames: run.frames,
+            map,
+            semantic_map,
+            landmarks,
+            local,
+            tracking: run.tracker.counters.clone(),
+            correction: corrector.stats,
+            skipped: run.skipped,
+            semantic_failures: failures,
+            timings,
+            wall_seconds: started.elapsed().as_secs_f64(),
+            interrupted: run.interrupted,
+            total_frames: n,
+            threads: config.system.threads,
+            depth,
+            keypoint_source,
+            semantic_source,
+        })
+    }
+}
+
+/// Frames with a given status.
+pub fn count_status(frames: &[FrameRecord], status: FrameStatus) -> usize {
+    frames.iter().filter(|f| f.status == status).count()
+}

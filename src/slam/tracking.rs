@@ -1,0 +1,716 @@
+//! Tracking: the camera pose of every frame (section IV-B, Fig. 2). Keypoints of
+//! the frame are range-matched (Fig. 4, eq 8) against the reference keyframe and
+//! the previous frame, whose keypoints carry 3D points from depth (eqs 9-10);
+//! PnP + RANSAC, scoring the constant-velocity prediction first, then
+//! Levenberg-Marquardt on the inliers (eq 4) gives the pose. Frames become
+//! keyframes by inlier count and motion since the reference keyframe.
+//!
+//! A failed frame is *lost*: relocalisation tries the reference and the
+//! keyframes with the most similar descriptors with a wide window; if none
+//! agrees the frame keeps the constant-velocity pose and the run goes on. After
+//! `reinitialise_after` lost frames in a row a keyframe is started at the
+//! predicted pose so that tracking can resume.
+//!
+//! Poses here are in the odometry frame (as tracked, never corrected): the final
+//! trajectory composes each frame's pose relative to its reference keyframe with
+//! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
+
+use super::config::SlamConfig;
+use super::keypoints::{KeyFeatures, similarity};
+use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
+use crate::camera::Camera;
+use crate::dataset::DepthImage;
+use crate::geometry::Pose;
+use crate::pnp::{PnpResult, solve_pnp_ransac};
+use crate::range_matcher::{RangeMatcherConfig, range_match};
+use nalgebra::{Point2, Point3};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// How a frame was tracked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameStatus {
+    /// First keyframe (or restart after being lost).
+    Initialised,
+    Tracked,
+    /// Lost, then found again against an earlier keyframe.
+    Relocalised,
+    /// Lost: the constant-velocity pose was kept.
+    Lost,
+}
+
+/// The outcome of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameRecord {
+    pub index: usize,
+    pub stamp: f64,
+    pub status: FrameStatus,
+    /// The keyframe this frame became, if any.
+    pub keyframe: Option<usize>,
+    /// The keyframe the pose is expressed against.
+    pub reference: Option<usize>,
+    /// `T_ref⁻¹ T_frame` in the odometry frame.
+    pub relative: Pose,
+    /// Camera-to-world pose in the odometry frame.
+    pub odom_pose: Pose,
+    /// PnP inliers and correspondences.
+    pub inliers: usize,
+    pub correspondences: usize,
+}
+
+/// A keyframe just created by tracking, for the mapping stage.
+#[derive(Debug, Clone)]
+pub struct NewKeyframe {
+    pub id: usize,
+    pub frame_index: usize,
+    pub stamp: f64,
+    pub pose: Pose,
+    pub gt_pose: Option<Pose>,
+    /// Keypoints with 3D points from sensor depth (RGB-D), or without 3D
+    /// points until mapping predicts the depth (monocular).
+    pub track: Arc<KeyframeFeatures>,
+}
+
+/// One frame for the tracker.
+#[derive(Debug, Clone)]
+pub struct TrackInput<'a> {
+    pub index: usize,
+    pub stamp: f64,
+    pub features: KeyFeatures,
+    /// Sensor depth (RGB-D mode only).
+    pub depth: Option<&'a DepthImage>,
+    pub gt_pose: Option<Pose>,
+}
+
+/// Result of [`Tracker::track`].
+#[derive(Debug, Clone)]
+pub struct TrackOutput {
+    pub record: FrameRecord,
+    pub keyframe: Option<NewKeyframe>,
+    /// What happened, for the log (lost, relocalised, restarted).
+    pub events: Vec<String>,
+}
+
+struct TrackedKeyframe {
+    frame_index: usize,
+    pose: Pose,
+    data: Arc<KeyframeFeatures>,
+}
+
+struct LastFrame {
+    index: usize,
+    pose: Pose,
+    features: KeyFeatures,
+    world: Vec<Option<Point3<f64>>>,
+}
+
+/// 3D-2D correspondences for PnP (world points, current pixels).
+#[derive(Default)]
+struct Correspondences {
+    world: Vec<Point3<f64>>,
+    pixels: Vec<Point2<f64>>,
+    current: Vec<usize>,
+    from_reference: Vec<bool>,
+    /// Keypoint index in its source.
+    source: Vec<usize>,
+}
+
+/// Keypoints with world points to match against (a keyframe or the previous frame).
+#[derive(Clone, Copy)]
+struct Source<'a> {
+    features: &'a KeyFeatures,
+    world: &'a [Option<Point3<f64>>],
+    /// Whether it is the reference keyframe.
+    reference: bool,
+}
+
+/// The best match of a current keypoint so far.
+#[derive(Clone, Copy)]
+struct Candidate {
+    distance: f32,
+    world: Point3<f64>,
+    reference: bool,
+    source: usize,
+}
+
+/// A verified keyframe pair.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairMatch {
+    /// `T_a⁻¹ T_b`.
+    pub relative: Pose,
+    pub inliers: usize,
+    /// Inlier keypoint pairs `(in a, in b)`.
+    pub matches: Vec<(u32, u32)>,
+}
+
+/// Counters of tracking trouble, with frame indices.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackingCounters {
+    /// Frames whose guided tracking failed.
+    pub failures: Vec<usize>,
+    /// ... of which relocalised against a keyframe.
+    pub relocalised: Vec<usize>,
+    /// ... of which kept the constant-velocity pose.
+    pub lost: Vec<usize>,
+    /// Frames where a keyframe was started after a lost streak.
+    pub reinitialised: Vec<usize>,
+}
+
+/// The tracking stage.
+pub struct Tracker {
+    cfg: SlamConfig,
+    camera: Camera,
+    monocular: bool,
+    keyframes: Vec<TrackedKeyframe>,
+    reference: Option<usize>,
+    last: Option<LastFrame>,
+    /// `T_{k-1}⁻¹ T_k` of the last tracked frame.
+    velocity: Pose,
+    lost_streak: usize,
+    pub counters: TrackingCounters,
+}
+
+impl Tracker {
+    pub fn new(cfg: SlamConfig, camera: Camera, monocular: bool) -> Self {
+        Tracker {
+            cfg,
+            camera,
+            monocular,
+            keyframes: Vec::new(),
+            reference: None,
+            last: None,
+            velocity: Pose::identity(),
+            lost_streak: 0,
+            counters: TrackingCounters::default(),
+        }
+    }
+
+    /// Number of keyframes created.
+    pub fn n_keyframes(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    fn depth_range(&self) -> (f64, f64) {
+        (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth)
+    }
+
+    /// Monocular mode: the keyframe's 3D points from predicted depth, sent back by
+    /// the mapping stage (Fig. 1: "passes depth information to the camera pose
+    /// module").
+    pub fn update_keyframe(&mut self, id: usize, data: Arc<KeyframeFeatures>) {
+        let Some(kf) = self.keyframes.get_mut(id) else {
+            return;
+        };
+        kf.data = data;
+        if let Some(last) = &mut self.last
+            && last.index == kf.frame_index
+        {
+            last.world = kf
+                .data
+                .points_cam
+                .iter()
+                .map(|p| p.map(|p| kf.pose * p))
+                .collect();
+        }
+    }
+
+    /// Tracks one frame.
+    pub fn track(&mut self, input: TrackInput<'_>) -> TrackOutput {
+        let mut events = Vec::new();
+        let Some(reference) = self.reference else {
+            return self.start(input, None, FrameStatus::Initialised, events);
+        };
+        let (last_pose, last_index) = match &self.last {
+            Some(l) => (l.pose, l.index),
+            None => (self.keyframes[reference].pose, input.index),
+        };
+        // Constant velocity, scaled by the frame gap (skipped frames).
+        let gap = input.index.saturating_sub(last_index).max(1);
+        let mut predicted = last_pose;
+        for _ in 0..gap {
+            predicted *= self.velocity;
+        }
+        let mut status = FrameStatus::Tracked;
+        let mut reference_now = reference;
+        let guided = self.guided(&input.features, reference, &predicted);
+        let mut tracked = guided.filter(|(r, _)| r.n_inliers >= self.cfg.pnp.min_inliers);
+        if tracked.is_none() {
+            self.counters.failures.push(input.index);
+            match self.relocalise(&input.features, reference, &predicted) {
+                Some((kf, r, c)) => {
+                    status = FrameStatus::Relocalised;
+                    self.counters.relocalised.push(input.index);
+                    events.push(format!(
+                        "frame {}: tracking lost, relocalised against keyframe {kf} ({} inliers)",
+                        input.index, r.n_inliers
+                    ));
+                    reference_now = kf;
+                    tracked = Some((r, c));
+                }
+                None => {
+                    self.counters.lost.push(input.index);
+                    events.push(format!(
+                        "frame {}: tracking lost, keeping the constant-velocity pose",
+                        input.index
+                    ));
+                }
+            }
+        }
+        let Some((result, corr)) = tracked else {
+            return self.lost(input, predicted, reference, events);
+        };
+        self.lost_streak = 0;
+        self.reference = Some(reference_now);
+        let pose = result.pose.inverse();
+        let ref_inliers = (0..corr.world.len())
+            .filter(|&k| result.inliers[k] && corr.from_reference[k])
+            .count();
+        let inliers = result.n_inliers;
+        // The frame's own 3D points: sensor depth, or the inliers' map points.
+        let world: Vec<Option<Point3<f64>>> = if self.monocular {
+            let mut w = vec![None; input.features.len()];
+            for k in 0..corr.world.len() {
+                if result.inliers[k] {
+                    w[corr.current[k]] = Some(corr.world[k]);
+                }
+            }
+            w
+        } else {
+            points_from_depth(
+                &input.features,
+                input.depth,
+                &self.camera,
+                self.depth_range(),
+            )
+            .into_iter()
+            .map(|p| p.map(|p| pose * p))
+            .collect()
+        };
+        self.velocity = last_pose.inverse() * pose;
+        let kf_pose = self.keyframes[reference_now].pose;
+        let since = kf_pose.inverse() * pose;
+        let rules = &self.cfg.keyframes;
+        let frames_since = input
+            .index
+            .saturating_sub(self.keyframes[reference_now].frame_index);
+        let wants_keyframe = ref_inliers < rules.min_inliers
+            || since.translation.vector.norm() > rules.max_translation
+            || since.rotation.angle().to_degrees() > rules.max_rotation_deg
+            || (rules.max_frames > 0 && frames_since >= rules.max_frames);
+        let can = self.monocular || input.depth.is_some();
+        if wants_keyframe && can {
+            let mut out = self.start(input, Some(pose), status, events);
+            out.record.inliers = inliers;
+            out.record.correspondences = corr.world.len();
+            return out;
+        }
+        let record = FrameRecord {
+            index: input.index,
+            stamp: input.stamp,
+            status,
+            keyframe: None,
+            reference: Some(reference_now),
+            relative: since,
+            odom_pose: pose,
+            inliers,
+            correspondences: corr.world.len(),
+        };
+        self.last = Some(LastFrame {
+            index: input.index,
+            pose,
+            features: input.features,
+            world,
+        });
+        TrackOutput {
+            record,
+            keyframe: None,
+            events,
+        }
+    }
+
+    /// Makes the frame a keyframe at `pose` (or at the start pose: ground truth
+    /// of the first frame when configured, else the identity).
+    fn start(
+        &mut self,
+        input: TrackInput<'_>,
+        pose: Option<Pose>,
+        status: FrameStatus,
+        mut events: Vec<String>,
+    ) -> TrackOutput {
+        let first = self.keyframes.is_empty();
+        let pose = pose.unwrap_or_else(|| {
+            if first && self.cfg.tracking.start_at_ground_truth {
+                input.gt_pose.unwrap_or_else(Pose::identity)
+            } else {
+                Pose::identity()
+            }
+        });
+        if !self.monocular && input.depth.is_none() {
+            events.push(format!(
+                "frame {}: no depth image, cannot start a keyframe",
+                input.index
+            ));
+            self.counters.lost.push(input.index);
+            return TrackOutput {
+                record: FrameRecord {
+                    index: input.index,
+                    stamp: input.stamp,
+                    status: FrameStatus::Lost,
+                    keyframe: None,
+                    reference: None,
+                    relative: pose,
+                    odom_pose: pose,
+                    inliers: 0,
+                    correspondences: 0,
+                },
+                keyframe: None,
+                events,
+            };
+        }
+        let depth = if self.monocular { None } else { input.depth };
+        let data = Arc::new(KeyframeFeatures::new(
+            input.features.clone(),
+            depth,
+            &self.camera,
+            self.depth_range(),
+        ));
+        let id = self.keyframes.len();
+        let world = data
+            .points_cam
+            .iter()
+            .map(|p| p.map(|p| pose * p))
+            .collect();
+        self.keyframes.push(TrackedKeyframe {
+            frame_index: input.index,
+            pose,
+            data: data.clone(),
+        });
+        self.reference = Some(id);
+        self.lost_streak = 0;
+        if let Some(last) = &self.last {
+            self.velocity = last.pose.inverse() * pose;
+        }
+        if status == FrameStatus::Lost {
+            self.counters.reinitialised.push(input.index);
+            events.push(format!(
+                "frame {}: lost for {} frames, restarting from keyframe {id} at the predicted pose",
+                input.index, self.cfg.tracking.reinitialise_after
+            ));
+        }
+        let record = FrameRecord {
+            index: input.index,
+            stamp: input.stamp,
+            status,
+            keyframe: Some(id),
+            reference: Some(id),
+            relative: Pose::identity(),
+            odom_pose: pose,
+            inliers: 0,
+            correspondences: 0,
+        };
+        self.last = Some(LastFrame {
+            index: input.index,
+            pose,
+            features: input.features,
+            world,
+        });
+        TrackOutput {
+            record,
+            keyframe: Some(NewKeyframe {
+                id,
+                frame_index: input.index,
+                stamp: input.stamp,
+                pose,
+                gt_pose: input.gt_pose,
+                track: data,
+            }),
+            events,
+        }
+    }
+
+    fn lost(
+        &mut self,
+        input: TrackInput<'_>,
+        predicted: Pose,
+        reference: usize,
+        events: Vec<String>,
+    ) -> TrackOutput {
+        self.lost_streak += 1;
+        let after = self.cfg.tracking.reinitialise_after;
+        if after > 0 && self.lost_streak >= after {
+            return self.start(input, Some(predicted), FrameStatus::Lost, events);
+        }
+        let record = FrameRecord {
+            index: input.index,
+            stamp: input.stamp,
+            status: FrameStatus::Lost,
+            keyframe: None,
+            reference: Some(reference),
+            relative: self.keyframes[reference].pose.inverse() * predicted,
+            odom_pose: predicted,
+            inliers: 0,
+            correspondences: 0,
+        };
+        // Keep the last good frame for matching; only its pose moves on.
+        if let Some(last) = &mut self.last {
+            last.pose = predicted;
+            last.index = input.index;
+        }
+        TrackOutput {
+            record,
+            keyframe: None,
+            events,
+        }
+    }
+
+    /// Range matching against the reference keyframe (and the previous frame)
+    /// with windows centred on the predicted positions, then PnP + RANSAC with
+    /// the prediction scored first.
+    fn guided(
+        &self,
+        current: &KeyFeatures,
+        reference: usize,
+        predicted: &Pose,
+    ) -> Option<(PnpResult, Correspondences)> {
+        let kf = &self.keyframes[reference];
+        let kf_world: Vec<Option<Point3<f64>>> = kf
+            .data
+            .points_cam
+            .iter()
+            .map(|p| p.map(|p| kf.pose * p))
+            .collect();
+        let mut sources = vec![Source {
+            features: &kf.data.features,
+            world: &kf_world,
+            reference: true,
+        }];
+        let prev = self
+            .last
+            .as_ref()
+            .filter(|l| self.cfg.tracking.match_previous_frame && l.index != kf.frame_index);
+        if let Some(l) = prev {
+            sources.push(Source {
+                features: &l.features,
+                world: &l.world,
+                reference: false,
+            });
+        }
+        let guide = self.cfg.matcher.predict_window.then_some(predicted);
+        let corr = self.correspond(&sources, current, guide, &self.cfg.matcher.range());
+        let result = self.pnp(&corr, Some(predicted))?;
+        Some((result, corr))
+    }
+
+    /// Relocalisation: the reference keyframe, then those with the most similar
+    /// signatures, matched with the wide window; the best PnP wins.
+    fn relocalise(
+        &self,
+        current: &KeyFeatures,
+        reference: usize,
+        predicted: &Pose,
+    ) -> Option<(usize, PnpResult, Correspondences)> {
+        let signature = current.mean_descriptor();
+        let mut ranked: Vec<(f32, usize)> = (0..self.keyframes.len())
+            .filter(|&k| k != reference)
+            .map(|k| (similarity(&signature, &self.keyframes[k].data.signature), k))
+            .collect();
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)));
+        let candidates = std::iter::once(reference).chain(
+            ranked
+                .into_iter()
+                .take(self.cfg.tracking.relocalisation_candidates)
+                .map(|r| r.1),
+        );
+        let mut best: Option<(usize, PnpResult, Correspondences)> = None;
+        for k in candidates {
+            let kf = &self.keyframes[k];
+            let world: Vec<Option<Point3<f64>>> = kf
+                .data
+                .points_cam
+                .iter()
+                .map(|p| p.map(|p| kf.pose * p))
+                .collect();
+            let corr = self.correspond(
+                &[Source {
+                    features: &kf.data.features,
+                    world: &world,
+                    reference: true,
+                }],
+                current,
+                None,
+                &self.cfg.matcher.wide(),
+            );
+            let prior = (k == reference).then_some(predicted);
+            if let Some(r) = self.pnp(&corr, prior)
+                && r.n_inliers >= self.cfg.pnp.min_inliers
+                && best.as_ref().is_none_or(|b| r.n_inliers > b.1.n_inliers)
+            {
+                best = Some((k, r, corr));
+            }
+        }
+        best
+    }
+
+    fn pnp(&self, corr: &Correspondences, predicted: Option<&Pose>) -> Option<PnpResult> {
+        if corr.world.len() < self.cfg.pnp.min_inliers.max(4) {
+            return None;
+        }
+        let prior = predicted.map(|p| p.inverse());
+        solve_pnp_ransac(
+            &corr.world,
+            &corr.pixels,
+            &self.camera,
+            prior.as_ref(),
+            &self.cfg.pnp.pnp(),
+        )
+        .ok()
+    }
+
+    /// Matches each source's keypoints that have world points to the current
+    /// keypoints; a current keypoint keeps its nearest-descriptor match.
+    fn correspond(
+        &self,
+        sources: &[Source<'_>],
+        current: &KeyFeatures,
+        guide: Option<&Pose>,
+        cfg: &RangeMatcherConfig,
+    ) -> Correspondences {
+        correspond(&self.camera, sources, current, guide, cfg)
+    }
+}
+
+/// 3D-2D correspondences between sources (keypoints with world points) and the
+/// current keypoints. With `guide` (a camera-to-world pose of the current
+/// frame), search windows are centred on the projections of the world points.
+fn correspond(
+    camera: &Camera,
+    sources: &[Source<'_>],
+    current: &KeyFeatures,
+    guide: Option<&Pose>,
+    cfg: &RangeMatcherConfig,
+) -> Correspondences {
+    let world_to_cam = guide.map(|g| g.inverse());
+    let bounds = ViewBounds::new(camera);
+    // Best (distance, world point, from reference) per current keypoint.
+    let mut best: Vec<Option<Candidate>> = vec![None; current.len()];
+    for &Source {
+        features,
+        world,
+        reference,
+    } in sources
+    {
+        if features.dim != current.dim || features.dim == 0 {
+            continue;
+        }
+        let ids: Vec<usize> = (0..features.len())
+            .filter(|&i| world.get(i).is_some_and(|w| w.is_some()))
+            .collect();
+        if ids.is_empty() || current.is_empty() {
+            continue;
+        }
+        let mut centres = Vec::with_capacity(ids.len());
+        let mut desc = Vec::with_capacity(ids.len() * features.dim);
+        for &i in &ids {
+            let mut c = features.points[i];
+            if let (Some(t), Some(Some(w))) = (&world_to_cam, world.get(i)) {
+                let q = t * w;
+                if bounds.contains(&q)
+                    && let Some(px) = camera.project(&q)
+                {
+                    c = [px.x as f32, px.y as f32];
+                }
+            }
+            centres.push(c);
+            desc.extend_from_slice(features.descriptor(i));
+        }
+        let Ok(matches) = range_match(
+            &centres,
+            &desc,
+            &current.points,
+            &current.descriptors,
+            current.dim,
+            cfg,
+        ) else {
+            continue;
+        };
+        for m in matches {
+            let Some(Some(w)) = world.get(ids[m.i]) else {
+                continue;
+            };
+            if best[m.j].is_none_or(|b| m.distance < b.distance) {
+                best[m.j] = Some(Candidate {
+                    distance: m.distance,
+                    world: *w,
+                    reference,
+                    source: ids[m.i],
+                });
+            }
+        }
+    }
+    let mut corr = Correspondences::default();
+    for (j, b) in best.into_iter().enumerate() {
+        if let Some(c) = b {
+            let p = current.points[j];
+            corr.world.push(c.world);
+            corr.pixels.push(Point2::new(p[0] as f64, p[1] as f64));
+            corr.current.push(j);
+            corr.from_reference.push(c.reference);
+            corr.source.push(c.source);
+        }
+    }
+    corr
+}
+
+/// Matches keyframe `a`'s keypoints (with 3D points) to keyframe `b`'s and
+/// estimates `T_a⁻¹ T_b` by PnP: guided by `guess` (that relative pose) with the
+/// normal window, else with the wide window. Returns the relative pose, the
+/// inliers and the inlier keypoint pairs `(in a, in b)`.
+pub fn verify_pair(
+    camera: &Camera,
+    cfg: &SlamConfig,
+    a: &KeyframeFeatures,
+    b: &KeyframeFeatures,
+    guess: Option<&Pose>,
+) -> Option<PairMatch> {
+    let attempt = |guide: Option<&Pose>, mcfg: &RangeMatcherConfig| {
+        let corr = correspond(
+            camera,
+            &[Source {
+                features: &a.features,
+                world: &a.points_cam,
+                reference: true,
+            }],
+            &b.features,
+            guide,
+            mcfg,
+        );
+        if corr.world.len() < cfg.correction.min_inliers {
+            return None;
+        }
+        let prior = guide.map(|g| g.inverse());
+        let r = solve_pnp_ransac(
+            &corr.world,
+            &corr.pixels,
+            camera,
+            prior.as_ref(),
+            &cfg.pnp.pnp(),
+        )
+        .ok()?;
+        let ok = r.n_inliers >= cfg.correction.min_inliers
+            && r.n_inliers as f64 >= cfg.correction.min_inlier_ratio * corr.world.len() as f64;
+        ok.then_some((r, corr))
+    };
+    let (r, corr) = guess
+        .and_then(|g| attempt(Some(g), &cfg.matcher.range()))
+        .or_else(|| attempt(None, &cfg.matcher.wide()))?;
+    let pairs = (0..corr.world.len())
+        .filter(|&k| r.inliers[k])
+        .map(|k| (corr.source[k] as u32, corr.current[k] as u32))
+        .collect();
+    Some(PairMatch {
+        relative: r.pose.inverse(),
+        inliers: r.n_inliers,
+        matches: pairs,
+    })
+}

@@ -252,9 +252,7 @@ fn slam(seq: &Path, camera: Camera, cfg: SlamConfig, depth: DepthMode, labels: b
     Slam {
         sequence,
         camera,
-        keypoints: Box::new(OrbSource {
-            config: cfg.features.orb(),
-        }),
+        keypoints: Box::new(OrbSource::from_config(&cfg.features)),
         config: cfg,
         depth,
         semantics,

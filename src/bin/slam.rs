@@ -134,9 +134,7 @@ fn main() -> Result<()> {
         FeaturesArg::Orb
     });
     let keypoints: Box<dyn KeypointSource> = match features {
-        FeaturesArg::Orb => Box::new(OrbSource {
-            config: config.features.orb(),
-        }),
+        FeaturesArg::Orb => Box::new(OrbSource::from_config(&config.features)),
         FeaturesArg::Fpfdcnn => {
             let Some(ckpt) = &cli.fpfdcnn else {
                 bail!("--features fpfdcnn needs a checkpoint: --fpfdcnn CKPT");

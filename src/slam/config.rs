@@ -40,6 +40,9 @@ pub struct FeatureConfig {
     pub fpfdcnn_input_scale: f32,
     /// ORB: FAST threshold, grey levels.
     pub orb_fast_threshold: u8,
+    /// ORB: when fewer than half of `top_k` keypoints are found, detect again
+    /// with this lower FAST threshold (ORB-SLAM's fallback; 0: off).
+    pub orb_fallback_threshold: u8,
     /// ORB: pyramid levels.
     pub orb_levels: usize,
     /// ORB: pyramid scale factor.
@@ -54,6 +57,7 @@ impl Default for FeatureConfig {
             fpfdcnn_nms_radius: 4,
             fpfdcnn_border: 4,
             orb_fast_threshold: 20,
+            orb_fallback_threshold: 7,
             orb_levels: 8,
             orb_scale_factor: 1.2,
             fpfdcnn_input_scale: 1.0,

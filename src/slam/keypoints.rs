@@ -64,10 +64,24 @@ pub trait KeypointSource: Send {
     fn detect(&self, gray: &GrayImage) -> Result<KeyFeatures>;
 }
 
-/// ORB as `cv::ORB_create(top_k)`.
+/// ORB as `cv::ORB_create(top_k)`, with a lower FAST threshold tried on
+/// low-texture images.
 #[derive(Debug, Clone)]
 pub struct OrbSource {
     pub config: OrbConfig,
+    /// FAST threshold of the second try when fewer than half of the wanted
+    /// keypoints are found (0: no second try).
+    pub fallback_threshold: u8,
+}
+
+impl OrbSource {
+    /// ORB with the keypoint settings of a SLAM configuration.
+    pub fn from_config(cfg: &super::config::FeatureConfig) -> Self {
+        OrbSource {
+            config: cfg.orb(),
+            fallback_threshold: cfg.orb_fallback_threshold,
+        }
+    }
 }
 
 impl KeypointSource for OrbSource {
@@ -76,7 +90,15 @@ impl KeypointSource for OrbSource {
     }
 
     fn detect(&self, gray: &GrayImage) -> Result<KeyFeatures> {
-        let f = detect_and_compute(gray, &self.config)?;
+        let mut f = detect_and_compute(gray, &self.config)?;
+        let t = self.fallback_threshold;
+        if t > 0 && t < self.config.fast_threshold && f.len() * 2 < self.config.n_features {
+            let cfg = OrbConfig {
+                fast_threshold: t,
+                ..self.config.clone()
+            };
+            f = detect_and_compute(gray, &cfg)?;
+        }
         let dim = 256;
         let mut descriptors = Vec::with_capacity(f.len() * dim);
         for d in &f.descriptors {
@@ -131,6 +153,7 @@ mod tests {
         });
         let src = OrbSource {
             config: OrbConfig::default(),
+            fallback_threshold: 0,
         };
         let f = src.detect(&img).unwrap();
         let raw = detect_and_compute(&img, &OrbConfig::default()).unwrap();

@@ -124,6 +124,8 @@ pub struct Report {
     pub timing: Vec<StageReport>,
     pub ate: Option<AteReport>,
     pub ate_unaligned: Option<AteReport>,
+    /// Why `ate` is missing although there is ground truth.
+    pub ate_note: Option<String>,
     pub rpe: Option<RpeReport>,
     pub label_histogram: Vec<LabelCount>,
     pub map_accuracy: Option<MapAccuracy>,
@@ -179,11 +181,25 @@ pub fn write_outputs(
         DepthMode::Sensor => Alignment::Se3,
         DepthMode::Predicted => Alignment::Sim3,
     };
-    let (mut ate, mut ate_unaligned, mut rpe_report, mut sim) = (None, None, None, None);
+    let (mut ate, mut ate_unaligned, mut rpe_report) = (None, None, None);
+    let mut ate_note: Option<String> = None;
     let traj_png = dir.join("trajectory.png");
     match (&seq.groundtruth, estimate.len() >= 3) {
         (Some(gt), true) => {
-            if let Ok(a) = ape(gt, &estimate, alignment, T_MAX_DIFF) {
+            // A degenerate alignment (a camera that only rotates in place) falls
+            // back to unaligned errors, with a note.
+            let aligned = match ape(gt, &estimate, alignment, T_MAX_DIFF) {
+                Ok(a) => Some((a, alignment)),
+                Err(e) => {
+                    ate_note = Some(format!(
+                        "{alignment:?} alignment failed ({e}): errors are unaligned"
+                    ));
+                    ape(gt, &estimate, Alignment::None, T_MAX_DIFF)
+                        .ok()
+                        .map(|a| (a, Alignment::None))
+                }
+            };
+            if let Some((a, how)) = aligned {
                 let times: Vec<f64> = a
                     .estimate
                     .stamps
@@ -193,9 +209,8 @@ pub fn write_outputs(
                 crate::plot::trajectory_figure(
                     &traj_png,
                     &format!(
-                        "{}: SLAM ({:?}-aligned) vs ground truth, ATE RMSE {:.4} m",
+                        "{}: SLAM ({how:?}-aligned) vs ground truth, ATE RMSE {:.4} m",
                         seq.name(),
-                        alignment,
                         a.stats.rmse
                     ),
                     &[
@@ -205,12 +220,13 @@ pub fn write_outputs(
                     Some(("ATE (m)", &times, &a.errors)),
                 )?;
                 outputs.push(traj_png.clone());
-                sim = Some(a.alignment);
-                ate = Some(AteReport {
-                    alignment,
-                    stats: a.stats,
-                    scale: a.alignment.scale,
-                });
+                if how == alignment {
+                    ate = Some(AteReport {
+                        alignment,
+                        stats: a.stats,
+                        scale: a.alignment.scale,
+                    });
+                }
             }
             if let Ok(a) = ape(gt, &estimate, Alignment::None, T_MAX_DIFF) {
                 ate_unaligned = Some(AteReport {
@@ -219,7 +235,12 @@ pub fn write_outputs(
                     scale: 1.0,
                 });
             }
-            if let Ok(r) = rpe(gt, &estimate, alignment, T_MAX_DIFF, 1.0, DeltaUnit::Frames) {
+            let how = if ate.is_some() {
+                alignment
+            } else {
+                Alignment::None
+            };
+            if let Ok(r) = rpe(gt, &estimate, how, T_MAX_DIFF, 1.0, DeltaUnit::Frames) {
                 rpe_report = Some(RpeReport {
                     delta_frames: 1,
                     translation: r.trans,
@@ -237,7 +258,7 @@ pub fn write_outputs(
             outputs.push(traj_png);
         }
     }
-    let map_accuracy = match sim.and_then(|s| keyframe_alignment(out, s.scale)) {
+    let map_accuracy = match keyframe_alignment(out) {
         Some(s) => evaluate_map(out, seq, camera, cfg, &points, &s)?,
         None => None,
     };
@@ -303,6 +324,7 @@ pub fn write_outputs(
             .collect(),
         ate,
         ate_unaligned,
+        ate_note,
         rpe: rpe_report,
         label_histogram,
         map_accuracy,
@@ -323,13 +345,15 @@ pub fn write_outputs(
     Ok(report)
 }
 
-/// The similarity moving the estimated world onto the ground-truth world,
+/// The rigid motion moving the estimated world onto the ground-truth world,
 /// from the keyframes' full poses: rotation the chordal mean of `R_gt R_est⁻¹`,
-/// translation the mean residual, with `scale` (the ATE alignment's scale in
-/// monocular mode, else 1). The position-only ATE alignment is ill-conditioned
-/// in rotation when the camera mostly rotates (fr1_rpy), which would misplace a
-/// map metres away from the cameras.
-fn keyframe_alignment(out: &SlamOutput, scale: f64) -> Option<Sim3> {
+/// translation the mean residual. The map is metric in both modes (sensor or
+/// predicted metric depth), so no scale is fitted. The position-only ATE
+/// alignment is ill-conditioned in rotation (and scale) when the camera mostly
+/// rotates (fr1_rpy) or barely moves, which would misplace a map metres away
+/// from the cameras.
+fn keyframe_alignment(out: &SlamOutput) -> Option<Sim3> {
+    let scale = 1.0;
     let pairs: Vec<_> = out
         .map
         .keyframes
@@ -579,9 +603,20 @@ impl Report {
                     let _ = writeln!(s, "\nSim(3) alignment scale: {:.4}", a.scale);
                 }
             }
-            None => {
-                let _ = writeln!(s, "No ground truth: no trajectory error.");
-            }
+            None => match (&self.ate_unaligned, &self.ate_note) {
+                (Some(u), note) => {
+                    let _ = writeln!(
+                        s,
+                        "ATE unaligned: RMSE {:.4} m over {} poses. {}",
+                        u.stats.rmse,
+                        u.stats.pairs,
+                        note.clone().unwrap_or_default()
+                    );
+                }
+                _ => {
+                    let _ = writeln!(s, "No ground truth: no trajectory error.");
+                }
+            },
         }
         let _ = writeln!(s, "\n## Map accuracy (Table 11)\n");
         match &self.map_accuracy {
@@ -704,6 +739,14 @@ impl Report {
                 );
             }
             let _ = writeln!(s);
+        }
+        if let (None, Some(u)) = (&self.ate, &self.ate_unaligned) {
+            let _ = writeln!(
+                s,
+                "ATE unaligned RMSE {:.4} m ({})",
+                u.stats.rmse,
+                self.ate_note.clone().unwrap_or_default()
+            );
         }
         if let Some(m) = &self.map_accuracy {
             let _ = write!(

@@ -401,6 +401,58 @@ pub fn up_direction(poses: &[Pose]) -> Vector3<f64> {
     }
 }
 
+/// Refines an up direction on the map itself: within 20° of `up`, the
+/// direction along which point heights are most concentrated (floors, table
+/// tops and ceilings are horizontal), so that a camera pitched down on average
+/// does not tilt the top-down view.
+pub fn level_up_direction(up: Vector3<f64>, points: &[MapPoint]) -> Vector3<f64> {
+    let step = (points.len() / 8_000).max(1);
+    let sample: Vec<Vector3<f64>> = points
+        .iter()
+        .step_by(step)
+        .map(|p| p.position.coords.cast::<f64>())
+        .collect();
+    if sample.len() < 100 {
+        return up;
+    }
+    let helper = if up.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = up.cross(&helper).normalize();
+    let e2 = up.cross(&e1);
+    let entropy = |u: &Vector3<f64>| -> f64 {
+        let mut bins: HashMap<i64, usize> = HashMap::new();
+        for p in &sample {
+            *bins.entry((p.dot(u) / 0.02).floor() as i64).or_default() += 1;
+        }
+        let n = sample.len() as f64;
+        bins.values()
+            .map(|&c| {
+                let q = c as f64 / n;
+                -q * q.ln()
+            })
+            .sum()
+    };
+    // A 2° grid, then 0.5° around its best.
+    let mut best = (entropy(&up), 0.0, 0.0);
+    for (range, step, centre) in [(10, 2.0, (0.0, 0.0)), (4, 0.5, (0.0, 0.0))] {
+        let c = if step < 1.0 { (best.1, best.2) } else { centre };
+        for a in -range..=range {
+            for b in -range..=range {
+                let (da, db) = (c.0 + a as f64 * step, c.1 + b as f64 * step);
+                let u = (up + e1 * da.to_radians().tan() + e2 * db.to_radians().tan()).normalize();
+                let h = entropy(&u);
+                if h < best.0 - 1e-9 {
+                    best = (h, da, db);
+                }
+            }
+        }
+    }
+    (up + e1 * best.1.to_radians().tan() + e2 * best.2.to_radians().tan()).normalize()
+}
+
 /// Draws the map from above (along `up`), each pixel the highest point below
 /// the ceiling in its class colour (its real colour when unlabelled), with the
 /// keyframe path, a 1 m scale bar and a legend of the classes present.
@@ -414,7 +466,7 @@ pub fn render_topdown(
 ) -> Result<()> {
     use plotters::prelude::*;
     const CEILING: u8 = 21;
-    let up = up_direction(keyframe_poses);
+    let up = level_up_direction(up_direction(keyframe_poses), points);
     // Horizontal axes: principal directions of the points in the plane.
     let helper = if up.x.abs() < 0.9 {
         Vector3::x()

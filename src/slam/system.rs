@@ -231,6 +231,8 @@ pub struct LocalMapper {
     log: Log,
     pub semantic_map: SemanticMap,
     fused_epoch: u64,
+    /// The pose each keyframe was fused with.
+    fused_poses: Vec<Pose>,
     pub failures: Vec<(usize, String)>,
     pub semantics_time: StageTime,
     pub fusion_time: StageTime,
@@ -255,6 +257,7 @@ impl LocalMapper {
             log,
             semantic_map: SemanticMap::new(voxel),
             fused_epoch: 0,
+            fused_poses: Vec::new(),
             failures: Vec::new(),
             semantics_time: StageTime::default(),
             fusion_time: StageTime::default(),
@@ -324,27 +327,44 @@ impl LocalMapper {
                 depth_scale: 1.0,
             });
         }
-        let epoch = read(&self.map).epoch;
-        if epoch != self.fused_epoch {
+        if self.moved_since_fusion() {
             self.refuse_all();
         } else {
             let m = read(&self.map);
             if let Some(k) = m.keyframes.last() {
                 self.semantic_map
                     .fuse(k, &k.pose, &self.camera, &self.cfg.map);
+                self.fused_poses.push(k.pose);
             }
         }
         self.fusion_time.add(t);
         track
     }
 
+    /// Whether correction moved a fused keyframe by more than a voxel (at
+    /// `max_depth` for rotations) since it was fused: only then is the whole
+    /// map re-fused online, which keeps online fusion linear in time.
+    fn moved_since_fusion(&self) -> bool {
+        let m = read(&self.map);
+        if m.epoch == self.fused_epoch {
+            return false;
+        }
+        let reach = self.cfg.map.max_depth;
+        m.keyframes.iter().zip(&self.fused_poses).any(|(k, f)| {
+            let d = f.inverse() * k.pose;
+            d.translation.vector.norm() + d.rotation.angle() * reach > self.cfg.map.voxel_size
+        })
+    }
+
     /// Rebuilds the voxel map from every keyframe's current pose and depth scale.
     pub fn refuse_all(&mut self) {
         let m = read(&self.map);
         self.semantic_map.clear();
+        self.fused_poses.clear();
         for k in &m.keyframes {
             self.semantic_map
                 .fuse(k, &k.pose, &self.camera, &self.cfg.map);
+            self.fused_poses.push(k.pose);
         }
         self.fused_epoch = m.epoch;
     }

@@ -507,21 +507,31 @@ fn robot(
             turn_left -= step;
             continue;
         }
-        if free_ahead(scene, p, heading) < 0.9 + clear {
+        // A step that stays clear of everything, also beside the robot.
+        let step = |h: f64, len: f64| {
+            let (s, c) = sin_cos(h);
+            [p[0] + c * len, p[1] + s * len, z]
+        };
+        let clear_at = |q: [f64; 3]| scene.clearance(&v3(q)) as f64 >= clear + 0.05;
+        let next = step(heading, speed * dt);
+        if free_ahead(scene, p, heading) < 0.9 + clear
+            || !clear_at(next)
+            || !clear_at(step(heading, 0.3))
+        {
             // Turn towards the most open of a few random headings.
             let mut best = (0.0, 0.0);
-            for _ in 0..10 {
+            for _ in 0..12 {
                 let d = rng.random_range(-PI..PI);
                 let f = free_ahead(scene, p, heading + d);
-                if f > best.0 {
+                if f > best.0 && clear_at(step(heading + d, 0.3)) {
                     best = (f, d);
                 }
             }
-            turn_left = best.1;
+            // Nowhere to go: turn on the spot and look again.
+            turn_left = if best.0 > 0.0 { best.1 } else { PI * 0.5 };
             continue;
         }
-        let (s, c) = sin_cos(heading);
-        p = [p[0] + c * speed * dt, p[1] + s * speed * dt, z];
+        p = next;
     }
     Some((dt, keys))
 }

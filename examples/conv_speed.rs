@@ -2,7 +2,8 @@
 //! (forward, mean loss, backward, Adam step) with a batch of 4 at 240×320.
 //!
 //! ```text
-//! cargo run --release --example conv_speed -- [ndarray|flex] [REPS] [fi,ft,si,st] [auto|burn|composite]
+//! cargo run --release --example conv_speed -- [ndarray|flex] [REPS] [fi,ft,si,st] \
+//!     [auto|burn|composite] [malloc=default]
 //! ```
 //!
 //! `fi`/`si`: FPFDCNN / SDFCNN inference (`forward`, batch 1, 480×640); `ft`: FPFDCNN train
@@ -11,7 +12,9 @@
 //! `REPS` timed runs (default 5) after one warm-up run. The last argument picks the convolution
 //! and max-pool implementation (`sdf_slam::nn::OpImpl`): `burn` is Burn's own kernels (the
 //! behaviour before `sdf_slam::nn::conv` existed), `composite` the im2col + matrix-product
-//! convolution and shifted-slice pooling, `auto` (default) the latter on ndarray only.
+//! convolution and shifted-slice pooling, `auto` (default) per op whichever is faster
+//! (`sdf_slam::nn::OpImpl::Auto`). The binary tunes glibc malloc (`sdf_slam::malloc`) like the
+//! `train` binary unless `malloc=default` is given.
 
 use std::time::Instant;
 
@@ -118,8 +121,11 @@ fn main() -> anyhow::Result<()> {
         other => anyhow::bail!("unknown implementation {other} (auto|burn|composite)"),
     };
     set_op_impl(conv);
+    // `malloc=default` keeps glibc's defaults, to measure what `sdf_slam::malloc` gains.
+    let tuned = args.get(5).map(String::as_str) != Some("malloc=default")
+        && sdf_slam::malloc::tune_for_tensors();
     let device = backend.device();
-    println!("backend {backend}, ops {conv:?}, {reps} timed runs each");
+    println!("backend {backend}, ops {conv:?}, malloc tuned {tuned}, {reps} timed runs each");
     for job in which.split(',') {
         let (name, ms) = match job {
             "fi" => ("FPFDCNN infer 1x480x640", fpfdcnn_infer(&device, reps)),

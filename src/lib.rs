@@ -8,7 +8,8 @@
 //! Foundation modules: [`camera`] (pinhole + Brown-Conrady), [`geometry`]
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
 //! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
-//! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs).
+//! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs),
+//! [`malloc`] (allocator tuning for tensor workloads).
 
 pub mod camera;
 pub mod dataset;
@@ -18,6 +19,7 @@ pub mod fpfdcnn;
 pub mod geometry;
 pub mod imageio;
 pub mod io;
+pub mod malloc;
 pub mod metrics;
 pub mod nn;
 pub mod plot;

@@ -26,8 +26,8 @@
 //! slices, and so of the slice gradients, by the stride².
 //!
 //! The autodiff backward of these ops is again matrix products, slice assignments and sums,
-//! all fast on ndarray. [`conv2d`] picks this path or Burn's own convolution per device
-//! (see [`OpImpl`]).
+//! all fast on ndarray. [`conv2d`] picks this path or Burn's own convolution per device and
+//! kind of convolution (see [`OpImpl`]).
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -39,13 +39,19 @@ use burn::tensor::ops::{ConvOptions, PadMode};
 /// Which implementation [`conv2d`] and [`crate::nn::max_pool2d`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OpImpl {
-    /// The composite ops ([`conv2d_matmul`], [`crate::nn::pool::max_pool2d_shifted`]) on the
-    /// ndarray backend (with or without autodiff), Burn's own kernels elsewhere.
+    /// Per op and device, whichever measured faster (`examples/conv_speed.rs`, 2-core VM):
+    ///
+    /// * ndarray with autodiff (training): always the composite ops — Burn's convolution
+    ///   backward there is 10–600× slower.
+    /// * ndarray without autodiff (inference): the composite ops except 3×3 depthwise
+    ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
+    /// * other backends (flex): only 1×1 stride-1 convolutions (a plain matrix product, 3–5×
+    ///   faster forward + backward on flex too) and, without autodiff, the max pool (2×).
     #[default]
     Auto,
     /// Always Burn's own kernels (`Conv2d::forward`, `MaxPool2d::forward`).
     Burn,
-    /// Always the composite ops.
+    /// Always the composite ops ([`conv2d_matmul`], [`crate::nn::pool::max_pool2d_shifted`]).
     Composite,
 }
 
@@ -79,20 +85,62 @@ pub fn is_ndarray(device: &Device) -> bool {
     device.clone().without_autodiff() == ndarray
 }
 
-/// Whether [`conv2d`] and [`crate::nn::max_pool2d`] take the composite path on `device` under
+/// The kinds of convolution [`OpImpl::Auto`] distinguishes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ConvKind {
+    /// 1×1, stride 1, no padding: a matrix product (elementwise when depthwise).
+    Pointwise,
+    /// `groups == C_in == C_out`, larger kernel.
+    Depthwise,
+    /// Anything else.
+    Dense,
+}
+
+impl ConvKind {
+    /// The kind of `layer`.
+    pub fn of(layer: &Conv2d) -> Self {
+        let [oc, c_per_group, kh, kw] = layer.weight.dims();
+        let pointwise = [kh, kw] == [1, 1]
+            && layer.stride == [1, 1]
+            && matches!(
+                layer.padding,
+                PaddingConfig2d::Valid | PaddingConfig2d::Explicit(0, 0, 0, 0)
+            );
+        if pointwise {
+            Self::Pointwise
+        } else if c_per_group == 1 && layer.groups == oc {
+            Self::Depthwise
+        } else {
+            Self::Dense
+        }
+    }
+}
+
+/// Whether [`conv2d`] takes the composite path for a convolution of `kind` on `device` under
 /// the current [`OpImpl`].
-pub fn uses_composite(device: &Device) -> bool {
+pub fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
     match op_impl() {
-        OpImpl::Auto => is_ndarray(device),
+        OpImpl::Auto if is_ndarray(device) => device.is_autodiff() || kind != ConvKind::Depthwise,
+        OpImpl::Auto => kind == ConvKind::Pointwise,
         OpImpl::Burn => false,
         OpImpl::Composite => true,
     }
 }
 
-/// `layer.forward(x)`, computed by [`conv2d_matmul`] where Burn's kernel is slow (ndarray),
-/// by Burn elsewhere. Same parameters, same result, same gradients.
+/// Whether [`crate::nn::max_pool2d`] takes the composite path on `device` under the current
+/// [`OpImpl`].
+pub fn pool_uses_composite(device: &Device) -> bool {
+    match op_impl() {
+        OpImpl::Auto => is_ndarray(device) || !device.is_autodiff(),
+        OpImpl::Burn => false,
+        OpImpl::Composite => true,
+    }
+}
+
+/// `layer.forward(x)`, computed by [`conv2d_matmul`] where that is faster than the backend's
+/// kernel (see [`OpImpl`]), by Burn otherwise. Same parameters, same result, same gradients.
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if !uses_composite(&x.device()) {
+    if !conv_uses_composite(&x.device(), ConvKind::of(layer)) {
         return layer.forward(x);
     }
     let [_, _, h, w] = x.dims();
@@ -471,9 +519,38 @@ mod tests {
             let x = random([2, 3, 7, 10], &d);
             let want = values(layer.forward(x.clone()));
             set_op_impl(OpImpl::Auto);
-            assert!(uses_composite(&d) && uses_composite(&d.clone().autodiff()));
-            assert!(!uses_composite(&Device::flex()));
+            assert!(conv_uses_composite(&d, ConvKind::of(&layer)));
             assert_close("same padding", &values(conv2d(&layer, x)), &want);
         }
+    }
+
+    #[test]
+    fn auto_policy_per_kind_and_device() {
+        let d = ndarray();
+        let layer = |c: [usize; 2], k: usize, groups: usize| {
+            burn::nn::conv::Conv2dConfig::new(c, [k, k])
+                .with_groups(groups)
+                .with_padding(PaddingConfig2d::Explicit(k / 2, k / 2, k / 2, k / 2))
+                .init(&d)
+        };
+        let (pw, dw, dense) = (
+            layer([8, 4], 1, 1),
+            layer([8, 8], 3, 8),
+            layer([4, 8], 3, 1),
+        );
+        assert_eq!(ConvKind::of(&pw), ConvKind::Pointwise);
+        assert_eq!(ConvKind::of(&layer([8, 8], 1, 8)), ConvKind::Pointwise);
+        assert_eq!(ConvKind::of(&dw), ConvKind::Depthwise);
+        assert_eq!(ConvKind::of(&dense), ConvKind::Dense);
+        set_op_impl(OpImpl::Auto);
+        let kinds = [ConvKind::Pointwise, ConvKind::Depthwise, ConvKind::Dense];
+        let on = |device: &Device| kinds.map(|k| conv_uses_composite(device, k));
+        assert_eq!(on(&d.clone().autodiff()), [true, true, true]);
+        assert_eq!(on(&d), [true, false, true]);
+        assert_eq!(on(&Device::flex()), [true, false, false]);
+        assert_eq!(on(&Device::flex().autodiff()), [true, false, false]);
+        assert!(pool_uses_composite(&d) && pool_uses_composite(&d.clone().autodiff()));
+        assert!(pool_uses_composite(&Device::flex()));
+        assert!(!pool_uses_composite(&Device::flex().autodiff()));
     }
 }

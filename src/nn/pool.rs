@@ -23,14 +23,14 @@ use burn::nn::pool::MaxPool2d;
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 
-use super::conv::{padding_pairs, uses_composite};
+use super::conv::{padding_pairs, pool_uses_composite};
 
-/// `pool.forward(x)`, computed by [`max_pool2d_shifted`] where Burn's kernel is slow
-/// (ndarray; see [`crate::nn::OpImpl`]) and the pool has stride 1, dilation 1 and no ceil
-/// mode; by Burn otherwise.
+/// `pool.forward(x)`, computed by [`max_pool2d_shifted`] where that is faster than the
+/// backend's kernel (see [`crate::nn::OpImpl`]) and the pool has stride 1, dilation 1 and no
+/// ceil mode; by Burn otherwise.
 pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
     let simple = pool.stride == [1, 1] && pool.dilation == [1, 1] && !pool.ceil_mode;
-    if !simple || !uses_composite(&x.device()) {
+    if !simple || !pool_uses_composite(&x.device()) {
         return pool.forward(x);
     }
     let [_, _, h, w] = x.dims();

@@ -9,12 +9,14 @@
 //! `fi`/`si`: FPFDCNN / SDFCNN inference (`forward`, batch 1, 480×640); `ft`: FPFDCNN train
 //! step (both images of a pair through the network, mean loss, backward, Adam); `st`: SDFCNN
 //! train step (`forward`, mean loss, backward, Adam). Prints the median and the spread of
-//! `REPS` timed runs (default 5) after one warm-up run. The last argument picks the convolution
-//! and max-pool implementation (`sdf_slam::nn::OpImpl`): `burn` is Burn's own kernels (the
-//! behaviour before `sdf_slam::nn::conv` existed), `composite` the im2col + matrix-product
-//! convolution and shifted-slice pooling, `auto` (default) per op whichever is faster
-//! (`sdf_slam::nn::OpImpl::Auto`). The binary tunes glibc malloc (`sdf_slam::malloc`) like the
-//! `train` binary unless `malloc=default` is given.
+//! `REPS` timed runs (default 5) after one warm-up run, and the median process CPU time (all
+//! threads), which says more than wall time on a loaded machine.
+//!
+//! The fourth argument picks the convolution and max-pool implementation
+//! (`sdf_slam::nn::OpImpl`): `burn` is Burn's own kernels (the behaviour before
+//! `sdf_slam::nn::conv` existed), `composite` the im2col + matrix-product convolution and
+//! shifted-slice pooling, `auto` (default) per op whichever is faster. The binary tunes glibc
+//! malloc (`sdf_slam::malloc`) like the `train` binary unless `malloc=default` is given.
 
 use std::time::Instant;
 
@@ -26,27 +28,45 @@ use sdf_slam::nn::{OpImpl, set_op_impl};
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig};
 use sdf_slam::training::BackendKind;
 
-/// Milliseconds of `reps` runs of `f` after one warm-up run, sorted.
-fn time(reps: usize, mut f: impl FnMut()) -> Vec<f64> {
-    f();
-    let mut ms: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    ms.sort_by(f64::total_cmp);
-    ms
+/// Process CPU time (user + system, all threads) in milliseconds, from `/proc/self/stat`
+/// (Linux; clock ticks of 10 ms). `None` elsewhere.
+fn cpu_ms() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks * 10.0)
 }
 
-fn report(name: &str, ms: &[f64]) {
-    let median = ms[ms.len() / 2];
+/// Wall-clock and CPU milliseconds of `reps` runs of `f` after one warm-up run, each sorted.
+fn time(reps: usize, mut f: impl FnMut()) -> (Vec<f64>, Vec<f64>) {
+    f();
+    let (mut wall, mut cpu) = (Vec::new(), Vec::new());
+    for _ in 0..reps {
+        let (t, c) = (Instant::now(), cpu_ms());
+        f();
+        wall.push(t.elapsed().as_secs_f64() * 1e3);
+        if let (Some(c0), Some(c1)) = (c, cpu_ms()) {
+            cpu.push(c1 - c0);
+        }
+    }
+    wall.sort_by(f64::total_cmp);
+    cpu.sort_by(f64::total_cmp);
+    (wall, cpu)
+}
+
+fn report(name: &str, (wall, cpu): &(Vec<f64>, Vec<f64>)) {
+    let median = |v: &[f64]| v[v.len() / 2];
+    let cpu = if cpu.is_empty() {
+        String::new()
+    } else {
+        format!(", cpu median {:.0} ms", median(cpu))
+    };
     println!(
-        "{name:<28} median {median:8.1} ms  (min {:.1}, max {:.1}, n {})",
-        ms[0],
-        ms[ms.len() - 1],
-        ms.len()
+        "{name:<28} median {:8.1} ms  (min {:.1}, max {:.1}, n {}{cpu})",
+        median(wall),
+        wall[0],
+        wall[wall.len() - 1],
+        wall.len()
     );
 }
 
@@ -55,7 +75,7 @@ fn sync(x: Tensor<4>) -> f32 {
     x.sum().into_scalar::<f32>()
 }
 
-fn fpfdcnn_infer(device: &Device, reps: usize) -> Vec<f64> {
+fn fpfdcnn_infer(device: &Device, reps: usize) -> (Vec<f64>, Vec<f64>) {
     let model = FpfdcnnConfig::new().init(device).expect("valid config");
     let x = Tensor::<4>::random([1, 1, 480, 640], Distribution::Default, device);
     time(reps, || {
@@ -65,7 +85,7 @@ fn fpfdcnn_infer(device: &Device, reps: usize) -> Vec<f64> {
     })
 }
 
-fn fpfdcnn_train(device: &Device, reps: usize) -> Vec<f64> {
+fn fpfdcnn_train(device: &Device, reps: usize) -> (Vec<f64>, Vec<f64>) {
     let device = device.clone().autodiff();
     let mut model: Option<Fpfdcnn> = Some(FpfdcnnConfig::new().init(&device).expect("valid"));
     let mut optim = AdamConfig::new().init();
@@ -81,7 +101,7 @@ fn fpfdcnn_train(device: &Device, reps: usize) -> Vec<f64> {
     })
 }
 
-fn sdfcnn_infer(device: &Device, reps: usize) -> Vec<f64> {
+fn sdfcnn_infer(device: &Device, reps: usize) -> (Vec<f64>, Vec<f64>) {
     let model = SdfcnnConfig::new().init(device).expect("valid config");
     let x = Tensor::<4>::random([1, 3, 480, 640], Distribution::Default, device);
     time(reps, || {
@@ -91,7 +111,7 @@ fn sdfcnn_infer(device: &Device, reps: usize) -> Vec<f64> {
     })
 }
 
-fn sdfcnn_train(device: &Device, reps: usize) -> Vec<f64> {
+fn sdfcnn_train(device: &Device, reps: usize) -> (Vec<f64>, Vec<f64>) {
     let device = device.clone().autodiff();
     let mut model: Option<Sdfcnn> = Some(SdfcnnConfig::new().init(&device).expect("valid"));
     let mut optim = AdamConfig::new().init();

@@ -412,6 +412,7 @@ mod tests {
         w: [usize; 4],
         stride: usize,
         padding: [(usize, usize); 2],
+        dilation: usize,
         groups: usize,
         bias: bool,
     }
@@ -429,12 +430,13 @@ mod tests {
             w,
             stride,
             padding: [(p, p), (p, p)],
+            dilation: 1,
             groups,
             bias,
         }
     }
 
-    const CASES: [Case; 10] = [
+    const CASES: [Case; 12] = [
         case([2, 3, 9, 11], [5, 3, 4, 4], 2, 1, 1, true), // FPFDCNN 4×4 s2 p1, odd sizes
         case([2, 3, 8, 12], [4, 3, 4, 4], 2, 1, 1, true), // 4×4 s2 p1, even sizes
         case([2, 4, 7, 9], [6, 4, 3, 3], 1, 1, 1, true),  // 3×3 s1 p1
@@ -445,6 +447,25 @@ mod tests {
         case([2, 4, 5, 6], [4, 1, 1, 1], 1, 0, 4, false), // depthwise 1×1
         case([2, 4, 7, 8], [6, 2, 3, 3], 1, 1, 2, true),  // grouped 3×3
         case([2, 4, 7, 8], [6, 4, 1, 1], 2, 1, 1, true),  // 1×1 s2 p1 (general path)
+        // Asymmetric padding (what `Same` gives an even kernel), dilation 2.
+        Case {
+            x: [2, 3, 8, 9],
+            w: [4, 3, 3, 3],
+            stride: 1,
+            padding: [(1, 2), (2, 1)],
+            dilation: 2,
+            groups: 1,
+            bias: true,
+        },
+        Case {
+            x: [2, 3, 9, 8],
+            w: [5, 3, 4, 4],
+            stride: 2,
+            padding: [(1, 2), (2, 1)],
+            dilation: 1,
+            groups: 1,
+            bias: true,
+        },
     ];
 
     /// Output and gradients w.r.t. input, weight and bias of `conv` on `device` (autodiff).
@@ -459,7 +480,8 @@ mod tests {
         let (x, w) = (to(&data.0), to(&data.1));
         let b = Tensor::<1>::from_data(data.2.to_data(), &device).require_grad();
         let upstream = Tensor::<4>::from_data(data.3.to_data(), &device);
-        let options = ConvOptions::new_with_padding([c.stride; 2], c.padding, [1, 1], c.groups);
+        let options =
+            ConvOptions::new_with_padding([c.stride; 2], c.padding, [c.dilation; 2], c.groups);
         let y = conv(x.clone(), w.clone(), c.bias.then(|| b.clone()), options);
         let grads = (y.clone() * upstream).sum().backward();
         let gb = if c.bias {
@@ -479,8 +501,10 @@ mod tests {
         for (k, c) in CASES.iter().enumerate() {
             let reference = Device::flex();
             let [n, _, h, w] = c.x;
-            let oh = (h + 2 * c.padding[0].0 - c.w[2]) / c.stride + 1;
-            let ow = (w + 2 * c.padding[1].0 - c.w[3]) / c.stride + 1;
+            let [(t, b), (l, r)] = c.padding;
+            let span = |k: usize| c.dilation * (k - 1) + 1;
+            let oh = (h + t + b - span(c.w[2])) / c.stride + 1;
+            let ow = (w + l + r - span(c.w[3])) / c.stride + 1;
             let data = (
                 random(c.x, &reference),
                 random(c.w, &reference),

@@ -9,7 +9,8 @@
 //! (SE(3)/Sim(3)), [`trajectory`] (TUM trajectories), [`dataset`] (TUM RGB-D
 //! sequences, NYUv2), [`metrics`] (ATE/RPE as evo computes them, errT/errR,
 //! segmentation and depth accuracy), [`plot`], [`training`] (checkpoints, logs),
-//! [`classes`] (NYU40 names and palette), [`synth`] (synthetic indoor RGB-D data).
+//! [`classes`] (NYU40 names and palette), [`synth`] (synthetic indoor RGB-D data),
+//! [`malloc`] (allocator tuning for tensor workloads).
 //! The SLAM system itself is [`slam`] (`cargo run --release --bin slam`).
 
 pub mod camera;
@@ -21,6 +22,7 @@ pub mod fpfdcnn;
 pub mod geometry;
 pub mod imageio;
 pub mod io;
+pub mod malloc;
 pub mod metrics;
 pub mod nn;
 pub mod plot;

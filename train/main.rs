@@ -79,6 +79,7 @@ enum Network {
 }
 
 fn main() -> Result<()> {
+    sdf_slam::malloc::tune_for_tensors();
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Summary(args)) => summary(&args),

@@ -15,7 +15,9 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::prelude::*;
 use burn::tensor::activation::sigmoid;
 
-use crate::nn::{SampleError, ShapeTrace, elu, pixel_shuffle, resize_bilinear, sample_bilinear_at};
+use crate::nn::{
+    SampleError, ShapeTrace, conv2d, elu, pixel_shuffle, resize_bilinear, sample_bilinear_at,
+};
 
 /// ELU slope of the negative part (Table 12, footnote 1: `a(eˣ − 1)`, `a = 1`).
 const ELU_ALPHA: f64 = 1.0;
@@ -185,22 +187,22 @@ impl Fpfdcnn {
             ("L6", &self.l6),
         ];
         for (name, layer) in encoder {
-            x = elu(layer.forward(x), ELU_ALPHA);
+            x = elu(conv2d(layer, x), ELU_ALPHA);
             if trace.is_enabled() {
                 trace.record(name, describe(layer, "ELU"), &x);
             }
         }
 
-        let det = elu(self.l7.forward(x.clone()), ELU_ALPHA);
+        let det = elu(conv2d(&self.l7, x.clone()), ELU_ALPHA);
         trace.record("L7", describe(&self.l7, "ELU"), &det);
-        let det = sigmoid(self.l8.forward(det));
+        let det = sigmoid(conv2d(&self.l8, det));
         trace.record("L8", describe(&self.l8, "sigmoid"), &det);
         let prob = pixel_shuffle(det, self.cell);
         trace.record("FP", format!("pixel shuffle x{}", self.cell), &prob);
 
-        let desc = elu(self.l9.forward(x), ELU_ALPHA);
+        let desc = elu(conv2d(&self.l9, x), ELU_ALPHA);
         trace.record("L9", describe(&self.l9, "ELU"), &desc);
-        let descriptors = self.l10.forward(desc);
+        let descriptors = conv2d(&self.l10, desc);
         trace.record("L10", describe(&self.l10, "linear"), &descriptors);
         Ok(FpfdcnnOutput { prob, descriptors })
     }

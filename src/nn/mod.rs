@@ -1,15 +1,20 @@
-//! Building blocks shared by both networks: a backend-independent differentiable bilinear
-//! resize, pixel shuffle, trainable-parameter counting and a layer-shape trace.
+//! Building blocks shared by both networks: convolution and max pooling that are fast on
+//! ndarray, a backend-independent differentiable bilinear resize, pixel shuffle,
+//! trainable-parameter counting and a layer-shape trace.
 
 pub mod activation;
+pub mod conv;
 pub mod params;
+pub mod pool;
 pub mod resize;
 pub mod shuffle;
 pub mod trace;
 pub mod weights;
 
 pub use activation::elu;
+pub use conv::{OpImpl, conv2d, conv2d_matmul, set_op_impl};
 pub use params::trainable_params;
+pub use pool::max_pool2d;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};
 pub use shuffle::pixel_shuffle;
 pub use trace::ShapeTrace;

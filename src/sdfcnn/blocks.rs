@@ -7,7 +7,7 @@ use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu6;
 
-use crate::nn::ShapeTrace;
+use crate::nn::{ShapeTrace, conv2d, max_pool2d};
 
 /// Bias-free convolution with `padding = kernel / 2` (Table 13's 0 for 1×1, 1 for 3×3).
 pub(crate) fn conv(
@@ -63,7 +63,7 @@ impl ConvBn {
 
     /// Applies conv, BN and the activation.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = self.bn.forward(self.conv.forward(x));
+        let x = self.bn.forward(conv2d(&self.conv, x));
         if self.relu6 { relu6(x) } else { x }
     }
 
@@ -213,9 +213,9 @@ impl Crp {
     ) -> Tensor<4> {
         let mut top = x.clone();
         for (i, conv) in self.convs.iter().enumerate() {
-            top = self.pool.forward(top);
+            top = max_pool2d(&self.pool, top);
             trace.record(names.name(i, true), "max_pool 5x5 s1 p2", &top);
-            top = conv.forward(top);
+            top = conv2d(conv, top);
             trace.record(
                 names.name(i, false),
                 format!("{} (+ sum)", describe(conv)),

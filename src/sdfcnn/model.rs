@@ -57,7 +57,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use super::blocks::{ConvBn, Crp, CrpNames, Stage, conv, describe};
-use crate::nn::{ShapeTrace, resize_bilinear};
+use crate::nn::{ShapeTrace, conv2d, resize_bilinear};
 
 /// Inverted-residual layers of the encoder, `(expansion, out_channels, blocks, stride)`:
 /// Layer2 … Layer6, then Layer7's 160-channel part and its final 320-channel block.
@@ -336,10 +336,10 @@ impl Sdfcnn {
             .forward_traced(x, trace, CrpNames::ConvsOnly("Layer11"));
 
         // Judge.
-        let s = relu(self.pre_seg.forward(x.clone()));
+        let s = relu(conv2d(&self.pre_seg, x.clone()));
         trace.record("seg", format!("{} ReLU", describe(&self.pre_seg)), &s);
         let seg = self.traced_conv(&self.seg, s, trace, "seg1");
-        let dp = relu(self.pre_depth.forward(x));
+        let dp = relu(conv2d(&self.pre_depth, x));
         trace.record("depth", format!("{} ReLU", describe(&self.pre_depth)), &dp);
         let depth = self.traced_conv(&self.depth, dp, trace, "depth1");
         Ok(SdfcnnOutput { seg, depth })
@@ -362,7 +362,7 @@ impl Sdfcnn {
         trace: &mut ShapeTrace,
         name: &str,
     ) -> Tensor<4> {
-        let y = conv.forward(x);
+        let y = conv2d(conv, x);
         if trace.is_enabled() {
             trace.record(name, describe(conv), &y);
         }

@@ -1,11 +1,14 @@
 //! Building blocks shared by both networks: a backend-independent differentiable bilinear
-//! resize, pixel shuffle, trainable-parameter counting and a layer-shape trace.
+//! resize, pixel shuffle, trainable-parameter counting, seeded initialisation and a layer-shape
+//! trace.
 
+pub mod init;
 pub mod params;
 pub mod resize;
 pub mod shuffle;
 pub mod trace;
 
+pub use init::seeded_init;
 pub use params::trainable_params;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at};
 pub use shuffle::pixel_shuffle;

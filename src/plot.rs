@@ -266,54 +266,6 @@ pub fn trajectory_figure(
     })
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn dominant_plane_drops_flat_axis() {
-        let pts: Vec<Point3<f64>> = (0..10)
-            .map(|i| Point3::new(i as f64, 1.0, 0.5 * i as f64))
-            .collect();
-        assert_eq!(dominant_plane(&[&pts]), (0, 2));
-    }
-
-    #[test]
-    fn figures_are_written() {
-        let dir = std::env::temp_dir().join(format!("sdf_plot_{}", std::process::id()));
-        let pts: Vec<Point3<f64>> = (0..50)
-            .map(|i| Point3::new((i as f64 * 0.1).cos(), (i as f64 * 0.1).sin(), 0.0))
-            .collect();
-        let t: Vec<f64> = (0..50).map(|i| i as f64).collect();
-        let e: Vec<f64> = (0..50).map(|i| i as f64 * 0.01).collect();
-        let p = dir.join("traj.png");
-        trajectory_figure(
-            &p,
-            "test",
-            &[("gt", &pts), ("est", &pts)],
-            Some(("ATE (m)", &t, &e)),
-        )
-        .unwrap();
-        let img = image::open(&p).unwrap();
-        assert_eq!(img.width(), 1500);
-        let p2 = dir.join("lines.png");
-        line_chart(
-            &p2,
-            "loss",
-            "epoch",
-            "loss",
-            &[Series {
-                name: "a",
-                points: vec![(0.0, 1.0), (1.0, 0.5)],
-            }],
-            true,
-        )
-        .unwrap();
-        assert!(p2.exists());
-        std::fs::remove_dir_all(dir).unwrap();
-    }
-}
-
 /// One image of a [`panels_figure`] with its title.
 pub struct Panel<'a> {
     pub title: &'a str,
@@ -383,4 +335,52 @@ pub fn panels_figure(
         root.present().map_err(plot_err)?;
     }
     crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageRgb8(canvas))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dominant_plane_drops_flat_axis() {
+        let pts: Vec<Point3<f64>> = (0..10)
+            .map(|i| Point3::new(i as f64, 1.0, 0.5 * i as f64))
+            .collect();
+        assert_eq!(dominant_plane(&[&pts]), (0, 2));
+    }
+
+    #[test]
+    fn figures_are_written() {
+        let dir = std::env::temp_dir().join(format!("sdf_plot_{}", std::process::id()));
+        let pts: Vec<Point3<f64>> = (0..50)
+            .map(|i| Point3::new((i as f64 * 0.1).cos(), (i as f64 * 0.1).sin(), 0.0))
+            .collect();
+        let t: Vec<f64> = (0..50).map(|i| i as f64).collect();
+        let e: Vec<f64> = (0..50).map(|i| i as f64 * 0.01).collect();
+        let p = dir.join("traj.png");
+        trajectory_figure(
+            &p,
+            "test",
+            &[("gt", &pts), ("est", &pts)],
+            Some(("ATE (m)", &t, &e)),
+        )
+        .unwrap();
+        let img = image::open(&p).unwrap();
+        assert_eq!(img.width(), 1500);
+        let p2 = dir.join("lines.png");
+        line_chart(
+            &p2,
+            "loss",
+            "epoch",
+            "loss",
+            &[Series {
+                name: "a",
+                points: vec![(0.0, 1.0), (1.0, 0.5)],
+            }],
+            true,
+        )
+        .unwrap();
+        assert!(p2.exists());
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }

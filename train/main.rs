@@ -1,9 +1,15 @@
 //! `train`: command-line entry point for the SDF-SLAM networks.
 //!
-//! `train summary fpfdcnn|sdfcnn` runs one forward pass on a zero image and prints each layer's
-//! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
-//! the trainable-parameter count. Training subcommands (driven by a `--config` file) are added
-//! as further [`Command`] variants.
+//! ```text
+//! train --config FILE [--resume] [--out DIR] [--backend ndarray|flex] [--epochs N] [--quiet]
+//! train summary fpfdcnn|sdfcnn [--height H --width W --backend B]
+//! ```
+//!
+//! A training config names its network with a top-level `model = "sdfcnn"` (or `"fpfdcnn"`);
+//! the run folder, checkpoints and `--resume` are described in `sdf_slam::training`.
+//! `train summary` runs one forward pass on a zero image and prints each layer's output shape
+//! under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then the
+//! trainable-parameter count.
 
 use anyhow::{Context, Result};
 use burn::prelude::*;
@@ -11,12 +17,43 @@ use clap::{Parser, Subcommand, ValueEnum};
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
 use sdf_slam::nn::{ShapeTrace, trainable_params};
 use sdf_slam::sdfcnn::SdfcnnConfig;
+use sdf_slam::training::{BackendKind, RunOptions, config_model};
+use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)")]
+#[command(
+    about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)",
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
 struct Cli {
+    #[command(flatten)]
+    run: TrainArgs,
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+}
+
+/// Training from a config file.
+#[derive(clap::Args, Debug)]
+struct TrainArgs {
+    /// Training config (TOML with `model = "sdfcnn"` or `"fpfdcnn"`).
+    #[arg(long, required = true)]
+    config: Option<PathBuf>,
+    /// Continue from the last checkpoint in the output folder.
+    #[arg(long)]
+    resume: bool,
+    /// Output folder (default: the config's `out`).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Backend (default: the config's `backend`, else ndarray).
+    #[arg(long, value_enum)]
+    backend: Option<BackendKind>,
+    /// Number of epochs (default: the config's `epochs`).
+    #[arg(long)]
+    epochs: Option<usize>,
+    /// No progress bar (one line per epoch is still printed).
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -67,9 +104,34 @@ impl Backend {
 }
 
 fn main() -> Result<()> {
-    match Cli::parse().command {
-        Command::Summary(args) => summary(&args),
+    let cli = Cli::parse();
+    match cli.command {
+        Some(Command::Summary(args)) => summary(&args),
+        None => train(&cli.run),
     }
+}
+
+/// Runs the trainer of the config's `model`.
+fn train(args: &TrainArgs) -> Result<()> {
+    let Some(path) = &args.config else {
+        anyhow::bail!("--config FILE is required");
+    };
+    let text = sdf_slam::io::read_text(path)?;
+    let opts = RunOptions {
+        out: args.out.clone(),
+        resume: args.resume,
+        backend: args.backend,
+        epochs: args.epochs,
+        quiet: args.quiet,
+    };
+    match config_model(&text, path)?.as_str() {
+        "sdfcnn" => sdf_slam::sdfcnn::training::run(path, &text, &opts)?,
+        other => anyhow::bail!(
+            "{}: no trainer for model = \"{other}\" (expected \"sdfcnn\" or \"fpfdcnn\")",
+            path.display()
+        ),
+    }
+    Ok(())
 }
 
 fn summary(args: &SummaryArgs) -> Result<()> {

@@ -1,8 +1,10 @@
-//! `eval`: trajectory evaluation that agrees with evo.
+//! `eval`: trajectory evaluation that agrees with evo, and SDFCNN accuracy (Tables 8-9).
 //!
 //! ```text
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
+//! eval seg --checkpoint DIR_OR_FILE --data DIR [--split FILE] [--backend ndarray|flex]
+//!          [--json FILE] [--out DIR] [--limit N]
 //! ```
 
 use anyhow::{Context, Result};
@@ -13,11 +15,14 @@ use sdf_slam::trajectory::Trajectory;
 use serde_json::json;
 use std::path::PathBuf;
 
+#[path = "eval/seg.rs"]
+mod seg;
+
 #[derive(Parser)]
 #[command(
     name = "eval",
     version,
-    about = "Evaluate trajectories (ATE / RPE as evo computes them)"
+    about = "Evaluate trajectories (ATE / RPE as evo computes them) and SDFCNN (Tables 8-9)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -40,6 +45,9 @@ enum Command {
         #[arg(long, default_value = "frames")]
         delta_unit: DeltaUnit,
     },
+    /// SDFCNN segmentation and depth accuracy on a NYUv2-layout folder: the paper's Table 8
+    /// (MPA, mIoU, time, parameters) and Table 9 (RMS, REL, δ, time, parameters), per class.
+    Seg(seg::SegArgs),
 }
 
 #[derive(Args)]
@@ -110,6 +118,7 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Command::Seg(a) => seg::run(&a)?,
         Command::Ate(a) => {
             let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
             let r = metrics::ape(&gt, &est, a.align, a.t_max_diff).context("ATE failed")?;

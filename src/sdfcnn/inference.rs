@@ -126,7 +126,7 @@ pub fn save_figure(
     ];
     let mut classes = classes_present(&pred.labels);
     if let Some((l, d)) = gt {
-        images.push(("", RgbImage::new(1, 1)));
+        images.push(("", RgbImage::from_pixel(1, 1, image::Rgb([255, 255, 255]))));
         images.push(("ground-truth labels", colorize_labels(l)));
         if let Some(d) = d {
             images.push(("ground-truth depth", colorize_depth(d, Some(max))));

@@ -534,7 +534,7 @@ fn model_device(model: &Sdfcnn) -> Device {
         .devices()
         .into_iter()
         .next()
-        .unwrap_or_else(|| Device::flex())
+        .unwrap_or_else(Device::flex)
 }
 
 /// Argmax labels (`u8`) and depth (metres) of full-resolution outputs, row-major per image.

@@ -176,7 +176,7 @@ fn print_tables(
     println!(
         "Time: median seconds per image of the network and the argmax (decoding excluded, one \
          warm-up run first). Parameter: trainable parameters ({params}); the paper's 11.8 M \
-         matches the size in MB of ~3 M f32 weights."
+         is close to the size in MB of 3 M f32 weights."
     );
 }
 

@@ -2,12 +2,11 @@
 //! block and Light-Weight RefineNet's chained residual pooling (CRP).
 
 use burn::nn::conv::{Conv2d, Conv2dConfig};
-use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 use burn::tensor::activation::relu6;
 
-use crate::nn::ShapeTrace;
+use crate::nn::{ShapeTrace, fast};
 
 /// Bias-free convolution with `padding = kernel / 2` (Table 13's 0 for 1×1, 1 for 3×3).
 pub(crate) fn conv(
@@ -63,7 +62,7 @@ impl ConvBn {
 
     /// Applies conv, BN and the activation.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = self.bn.forward(self.conv.forward(x));
+        let x = self.bn.forward(fast::conv2d(&self.conv, x));
         if self.relu6 { relu6(x) } else { x }
     }
 
@@ -186,7 +185,6 @@ impl CrpNames<'_> {
 /// stage, `x ← x + top` (Table 13 Layer7_16–7_23, Layer9_1–9_8, Layer10_1–10_4).
 #[derive(Module, Debug)]
 pub struct Crp {
-    pool: MaxPool2d,
     convs: Vec<Conv2d>,
 }
 
@@ -195,10 +193,6 @@ impl Crp {
     pub fn new(channels: usize, stages: usize, depthwise: bool, d: &Device) -> Self {
         let groups = if depthwise { channels } else { 1 };
         Self {
-            pool: MaxPool2dConfig::new([5, 5])
-                .with_strides([1, 1])
-                .with_padding(PaddingConfig2d::Explicit(2, 2, 2, 2))
-                .init(),
             convs: (0..stages)
                 .map(|_| conv([channels, channels], 1, 1, groups, false, d))
                 .collect(),
@@ -213,9 +207,9 @@ impl Crp {
     ) -> Tensor<4> {
         let mut top = x.clone();
         for (i, conv) in self.convs.iter().enumerate() {
-            top = self.pool.forward(top);
+            top = fast::max_pool_same(top, 5);
             trace.record(names.name(i, true), "max_pool 5x5 s1 p2", &top);
-            top = conv.forward(top);
+            top = fast::conv2d(conv, top);
             trace.record(
                 names.name(i, false),
                 format!("{} (+ sum)", describe(conv)),

@@ -49,6 +49,9 @@
 //!     padding 1 the sizes for 300×400 are exactly the table's: 150×200, 75×100, 38×50, 19×25,
 //!     10×13 (H×W); no deviation.
 //!
+//! 1×1 convolutions run as matrix products and the CRP max pooling as separable running maxima
+//! ([`crate::nn::fast`]): same parameters and outputs, much faster backward on burn-ndarray.
+//!
 //! Differences from Nekrasov et al.'s code that follow the table instead: seg1 is 1×1 (theirs
 //! 3×3) and the decoder/judge activations are ReLU (theirs ReLU6).
 
@@ -57,7 +60,7 @@ use burn::prelude::*;
 use burn::tensor::activation::relu;
 
 use super::blocks::{ConvBn, Crp, CrpNames, Stage, conv, describe};
-use crate::nn::{ShapeTrace, resize_bilinear};
+use crate::nn::{ShapeTrace, fast, resize_bilinear};
 
 /// Inverted-residual layers of the encoder, `(expansion, out_channels, blocks, stride)`:
 /// Layer2 … Layer6, then Layer7's 160-channel part and its final 320-channel block.
@@ -336,10 +339,10 @@ impl Sdfcnn {
             .forward_traced(x, trace, CrpNames::ConvsOnly("Layer11"));
 
         // Judge.
-        let s = relu(self.pre_seg.forward(x.clone()));
+        let s = relu(fast::conv2d(&self.pre_seg, x.clone()));
         trace.record("seg", format!("{} ReLU", describe(&self.pre_seg)), &s);
         let seg = self.traced_conv(&self.seg, s, trace, "seg1");
-        let dp = relu(self.pre_depth.forward(x));
+        let dp = relu(fast::conv2d(&self.pre_depth, x));
         trace.record("depth", format!("{} ReLU", describe(&self.pre_depth)), &dp);
         let depth = self.traced_conv(&self.depth, dp, trace, "depth1");
         Ok(SdfcnnOutput { seg, depth })
@@ -362,7 +365,7 @@ impl Sdfcnn {
         trace: &mut ShapeTrace,
         name: &str,
     ) -> Tensor<4> {
-        let y = conv.forward(x);
+        let y = fast::conv2d(conv, x);
         if trace.is_enabled() {
             trace.record(name, describe(conv), &y);
         }

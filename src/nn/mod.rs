@@ -1,7 +1,6 @@
 //! Building blocks shared by both networks: a backend-independent differentiable bilinear
 //! resize, pixel shuffle, fast 1×1 / depthwise convolution and max pooling, trainable-parameter
-//! counting, seeded initialisation and a layer-shape
-//! trace.
+//! counting, seeded initialisation and a layer-shape trace.
 
 pub mod fast;
 pub mod init;

@@ -267,6 +267,77 @@ pub fn trajectory_figure(
     })
 }
 
+/// One image of a [`panels_figure`] with its title.
+pub struct Panel<'a> {
+    pub title: &'a str,
+    pub image: &'a image::RgbImage,
+}
+
+/// Images side by side (`columns` a row, each under its title) above a colour legend
+/// (`(name, rgb)` swatches), like the paper's Fig. 11. Panels of different sizes are placed in
+/// cells of the largest size.
+pub fn panels_figure(
+    path: impl AsRef<Path>,
+    panels: &[Panel<'_>],
+    columns: usize,
+    legend: &[(String, [u8; 3])],
+) -> Result<()> {
+    if panels.is_empty() {
+        return Err(Error::msg("a figure needs at least one image"));
+    }
+    let columns = columns.clamp(1, panels.len());
+    let rows = panels.len().div_ceil(columns);
+    let cw = panels.iter().map(|p| p.image.width()).max().unwrap_or(1);
+    let ch = panels.iter().map(|p| p.image.height()).max().unwrap_or(1);
+    let (pad, title_h) = (8u32, 26u32);
+    let width = columns as u32 * (cw + pad) + pad;
+    let legend_cols = (width / 180).max(1) as usize;
+    let legend_rows = legend.len().div_ceil(legend_cols) as u32;
+    let legend_h = if legend.is_empty() {
+        0
+    } else {
+        legend_rows * 22 + pad
+    };
+    let height = rows as u32 * (ch + title_h + pad) + pad + legend_h;
+    let mut canvas = image::RgbImage::from_pixel(width, height, image::Rgb([255, 255, 255]));
+    let origin = |k: usize| {
+        let (r, c) = ((k / columns) as u32, (k % columns) as u32);
+        (pad + c * (cw + pad), pad + r * (ch + title_h + pad))
+    };
+    for (k, p) in panels.iter().enumerate() {
+        let (x, y) = origin(k);
+        image::imageops::replace(&mut canvas, p.image, x as i64, (y + title_h) as i64);
+    }
+    register_fonts();
+    {
+        let root = BitMapBackend::with_buffer(canvas.as_mut(), (width, height)).into_drawing_area();
+        let font = ("sans-serif", 18).into_font().color(&BLACK);
+        for (k, p) in panels.iter().enumerate() {
+            let (x, y) = origin(k);
+            root.draw_text(p.title, &font, (x as i32, y as i32 + 3))
+                .map_err(plot_err)?;
+        }
+        let small = ("sans-serif", 15).into_font().color(&BLACK);
+        let top = (height - legend_h) as i32;
+        let cell = (width - pad) / legend_cols as u32;
+        for (k, (name, [r, g, b])) in legend.iter().enumerate() {
+            let x = (pad + (k % legend_cols) as u32 * cell) as i32;
+            let y = top + (k / legend_cols) as i32 * 22;
+            root.draw(&Rectangle::new(
+                [(x, y + 2), (x + 16, y + 18)],
+                RGBColor(*r, *g, *b).filled(),
+            ))
+            .map_err(plot_err)?;
+            root.draw(&Rectangle::new([(x, y + 2), (x + 16, y + 18)], BLACK))
+                .map_err(plot_err)?;
+            root.draw_text(name, &small, (x + 22, y + 3))
+                .map_err(plot_err)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageRgb8(canvas))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

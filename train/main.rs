@@ -101,6 +101,7 @@ fn train(args: RunArgs) -> Result<()> {
     };
     match config_model(&text, &config)?.as_str() {
         "fpfdcnn" => sdf_slam::fpfdcnn::training::run(&config, &text, &opts)?,
+        "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
         other => anyhow::bail!(
             "{}: unknown model '{other}' (fpfdcnn or sdfcnn)",
             config.display()

@@ -1,9 +1,12 @@
-//! `eval`: trajectory evaluation that agrees with evo.
+//! `eval`: trajectory evaluation that agrees with evo, FPFDCNN matching (Tables 6-7) and
+//! SDFCNN accuracy (Tables 8-9).
 //!
 //! ```text
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
 //! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT] [--json FILE]
+//! eval seg --checkpoint DIR_OR_FILE --data DIR [--split FILE] [--backend ndarray|flex]
+//!          [--json FILE] [--out DIR] [--limit N]
 //! ```
 
 use anyhow::{Context, Result};
@@ -15,11 +18,14 @@ use sdf_slam::trajectory::Trajectory;
 use serde_json::json;
 use std::path::PathBuf;
 
+#[path = "eval/seg.rs"]
+mod seg;
+
 #[derive(Parser)]
 #[command(
     name = "eval",
     version,
-    about = "Evaluate trajectories (ATE / RPE as evo computes them)"
+    about = "Evaluate trajectories (ATE / RPE as evo computes them), FPFDCNN matching (Tables 6-7) and SDFCNN (Tables 8-9)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -45,6 +51,9 @@ enum Command {
     /// The paper's Tables 6 and 7: matching accuracy and relative-pose error of
     /// ORB + BF and FPFDCNN + range matcher on clear and blurred frame pairs.
     Matching(MatchingArgs),
+    /// SDFCNN segmentation and depth accuracy on a NYUv2-layout folder: the paper's Table 8
+    /// (MPA, mIoU, time, parameters) and Table 9 (RMS, REL, δ, time, parameters), per class.
+    Seg(seg::SegArgs),
 }
 
 #[derive(Args)]
@@ -217,6 +226,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Matching(a) => matching(a)?,
+        Command::Seg(a) => seg::run(&a)?,
         Command::Ate(a) => {
             let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
             let r = metrics::ape(&gt, &est, a.align, a.t_max_diff).context("ATE failed")?;

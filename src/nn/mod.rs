@@ -1,9 +1,10 @@
 //! Building blocks shared by both networks: convolution and max pooling that are fast on
 //! ndarray, a backend-independent differentiable bilinear resize, pixel shuffle,
-//! trainable-parameter counting and a layer-shape trace.
+//! trainable-parameter counting, seeded initialisation and a layer-shape trace.
 
 pub mod activation;
 pub mod conv;
+pub mod init;
 pub mod params;
 pub mod pool;
 pub mod resize;
@@ -13,6 +14,7 @@ pub mod weights;
 
 pub use activation::elu;
 pub use conv::{OpImpl, conv2d, conv2d_matmul, set_op_impl};
+pub use init::seeded_init;
 pub use params::trainable_params;
 pub use pool::max_pool2d;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};

@@ -1,7 +1,14 @@
 //! SDFCNN, the joint semantic segmentation and depth network of SDF-SLAM (Section IV-C,
-//! Table 13).
+//! Table 13): the model, its loss (eq. 21), training data, the trainer and inference.
 
 mod blocks;
+pub mod data;
+pub mod inference;
+pub mod loss;
 mod model;
+pub mod training;
 
+pub use inference::{Prediction, SdfcnnPredictor};
+pub use loss::{DepthLoss, LossParts, LossResolution, SdfcnnLossConfig};
 pub use model::{Sdfcnn, SdfcnnConfig, SdfcnnError, SdfcnnOutput};
+pub use training::SdfcnnTrainConfig;

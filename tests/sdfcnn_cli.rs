@@ -1,0 +1,122 @@
+//! The `train --config` and `eval seg` commands end to end on the NYUv2 fixtures, with a tiny
+//! network (32×48, one epoch).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("sdf_cli_{name}_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const TINY: &str = r#"model = "sdfcnn"
+out = "OUT"
+epochs = 1
+batch_size = 3
+[data]
+train = [{ path = "datasets/fixtures/nyuv2" }]
+val = [{ path = "datasets/fixtures/nyuv2" }]
+size = [32, 48]
+[network]
+inner_size = [32, 48]
+decoder_dim = 16
+crp_stages = 1
+"#;
+
+#[test]
+fn train_then_eval_seg() {
+    let dir = tmp("train_eval");
+    let run = dir.join("run");
+    let cfg = dir.join("tiny.toml");
+    std::fs::write(&cfg, TINY.replace("OUT", &run.display().to_string())).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_train"))
+        .args(["--config", cfg.to_str().unwrap(), "--quiet"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("epoch 1/1") && stdout.contains("val_miou"),
+        "{stdout}"
+    );
+    assert!(run.join("checkpoints/epoch-0001/model.bpk").is_file());
+
+    let pred = dir.join("pred");
+    let json = dir.join("seg.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_eval"))
+        .args(["seg", "--checkpoint", run.to_str().unwrap()])
+        .args([
+            "--data",
+            "datasets/fixtures/nyuv2",
+            "--limit",
+            "2",
+            "--backend",
+            "flex",
+        ])
+        .args([
+            "--out",
+            pred.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for s in [
+        "Table 8",
+        "Table 9",
+        "| SDFCNN (this run) |",
+        "| 19 | floor mat |",
+    ] {
+        assert!(stdout.contains(s), "{s}: {stdout}");
+    }
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["images"], 2);
+    assert!(v["mpa"].as_f64().unwrap() >= 0.0 && v["depth"]["rms"].as_f64().unwrap() > 0.0);
+    for f in ["000433_labels.png", "000433_depth.png", "000464_figure.png"] {
+        assert!(pred.join(f).is_file(), "{f}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn train_config_errors_name_the_line() {
+    let dir = tmp("bad_config");
+    let cfg = dir.join("bad.toml");
+    std::fs::write(
+        &cfg,
+        TINY.replace("batch_size = 3", "batch_size = 3\nbatch_sise = 4"),
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_train"))
+        .args(["--config", cfg.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("bad.toml:5:") && stderr.contains("batch_sise"),
+        "{stderr}"
+    );
+    std::fs::write(&cfg, "model = \"unknown\"\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_train"))
+        .args(["--config", cfg.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no trainer"));
+    let out = Command::new(env!("CARGO_BIN_EXE_train")).output().unwrap();
+    assert!(!out.status.success(), "--config is required");
+    std::fs::remove_dir_all(&dir).ok();
+}

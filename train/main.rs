@@ -103,7 +103,7 @@ fn train(args: RunArgs) -> Result<()> {
         "fpfdcnn" => sdf_slam::fpfdcnn::training::run(&config, &text, &opts)?,
         "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
         other => anyhow::bail!(
-            "{}: unknown model '{other}' (fpfdcnn or sdfcnn)",
+            "{}: no trainer for model = \"{other}\" (expected \"fpfdcnn\" or \"sdfcnn\")",
             config.display()
         ),
     }

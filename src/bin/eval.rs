@@ -94,6 +94,13 @@ struct MatchingArgs {
     /// Keep only mutual nearest neighbours in the range matcher.
     #[arg(long)]
     mutual: bool,
+    /// Lowe's ratio test in the range matcher (e.g. 0.9).
+    #[arg(long)]
+    ratio: Option<f32>,
+    /// Centre each window where a global affine motion estimate (from confident
+    /// descriptor matches, RANSAC) moves the keypoint, instead of at the keypoint itself.
+    #[arg(long)]
+    guided: bool,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -200,6 +207,8 @@ fn matching(a: MatchingArgs) -> Result<()> {
     };
     cfg.range.window = a.window;
     cfg.range.mutual = a.mutual;
+    cfg.range.ratio = a.ratio;
+    cfg.guide = a.guided.then(sdf_slam::range_matcher::GuideConfig::default);
     let bar = indicatif::ProgressBar::new(0);
     let (report, picture) = evaluate(&seq, &cam, detector.as_ref(), &cfg, |k, n| {
         bar.set_length(n as u64);

@@ -19,7 +19,7 @@ use crate::geometry::Pose;
 use crate::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, match_errors};
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
-use crate::range_matcher::{RangeMatcherConfig, range_match};
+use crate::range_matcher::{GuideConfig, RangeMatcherConfig, guided_range_match, range_match};
 use crate::raster::GrayF32;
 use image::{GrayImage, Rgb, RgbImage};
 use nalgebra::Point2;
@@ -40,6 +40,9 @@ pub struct MatchingEvalConfig {
     pub blur: Option<Degradation>,
     pub orb: OrbConfig,
     pub range: RangeMatcherConfig,
+    /// Centre the range matcher's windows by a global motion estimate
+    /// ([`crate::range_matcher::guided_range_match`]); `None`: at the keypoint (the paper).
+    pub guide: Option<GuideConfig>,
     pub pnp: PnpConfig,
 }
 
@@ -53,6 +56,7 @@ impl Default for MatchingEvalConfig {
             blur: None,
             orb: OrbConfig::default(),
             range: RangeMatcherConfig::default(),
+            guide: None,
             pnp: PnpConfig::default(),
         }
     }
@@ -90,6 +94,9 @@ pub struct MatchingReport {
     pub pairs: Vec<(usize, usize)>,
     pub gap: usize,
     pub blur: Option<String>,
+    /// The range matcher's settings, in words.
+    #[serde(default)]
+    pub range_matcher: String,
     pub orb_bf: MethodResult,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fpfdcnn_range: Option<MethodResult>,
@@ -144,20 +151,19 @@ fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMa
     Ok((m, fa.len() + fb.len()))
 }
 
-/// FPFDCNN keypoints of both images matched by the range matcher (eq 8).
+/// FPFDCNN keypoints of both images matched by the range matcher (eq 8), its windows
+/// centred by a global motion estimate when `guide` is given.
 pub fn fpfdcnn_matches(
     fa: &Features,
     fb: &Features,
     cfg: &RangeMatcherConfig,
+    guide: Option<&GuideConfig>,
 ) -> Result<PixelMatches> {
-    let m = range_match(
-        &fa.points,
-        &fa.descriptors,
-        &fb.points,
-        &fb.descriptors,
-        fa.dim,
-        cfg,
-    )?;
+    let (p1, d1, p2, d2) = (&fa.points, &fa.descriptors, &fb.points, &fb.descriptors);
+    let m = match guide {
+        Some(g) => guided_range_match(p1, d1, p2, d2, fa.dim, cfg, g)?.0,
+        None => range_match(p1, d1, p2, d2, fa.dim, cfg)?,
+    };
     Ok(m.iter()
         .map(|m| {
             let (pa, pb) = (fa.points[m.i], fb.points[m.j]);
@@ -306,7 +312,7 @@ pub fn evaluate(
             ));
             if let Some(det) = detector {
                 let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
-                let m = fpfdcnn_matches(&fa, &fb, &cfg.range)?;
+                let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
                 score(&mut net[c], &m, fa.len() + fb.len(), &pgt)?;
                 let errs = match_errors(&m, depth, cam, &pose_a, &pose_b)?;
                 rows.push((
@@ -340,6 +346,7 @@ pub fn evaluate(
             pairs: used,
             gap: cfg.gap,
             blur: cfg.blur.map(|d| format!("{d:?}")),
+            range_matcher: describe_matcher(cfg),
             orb_bf: finish(orb),
             fpfdcnn_range: detector.map(|_| finish(net)),
         },
@@ -399,16 +406,38 @@ fn draw_line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>) {
 }
 
 /// The report as markdown tables shaped like the paper's Tables 6 and 7.
+/// The range matcher's settings, e.g. "140 px window centred by a global affine motion
+/// estimate, mutual, ratio 0.9".
+pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
+    let mut s = format!(
+        "{} px window {}",
+        cfg.range.window,
+        if cfg.guide.is_some() {
+            "centred by a global affine motion estimate"
+        } else {
+            "centred at the keypoint"
+        }
+    );
+    if cfg.range.mutual {
+        s.push_str(", mutual");
+    }
+    if let Some(r) = cfg.range.ratio {
+        s.push_str(&format!(", ratio {r}"));
+    }
+    s
+}
+
 pub fn markdown(r: &MatchingReport) -> String {
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image |\n|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image |\n|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,
         r.blur
             .as_ref()
             .map(|b| format!(", blur {b} on both images"))
-            .unwrap_or_default()
+            .unwrap_or_default(),
+        r.range_matcher
     );
     let mut methods = vec![("ORB + BF matcher", &r.orb_bf)];
     if let Some(f) = &r.fpfdcnn_range {

@@ -64,6 +64,10 @@ pub struct FpfdcnnTrainConfig {
     /// Descriptor length (Table 12: 256).
     #[serde(default = "default_dim")]
     pub descriptor_dim: usize,
+    /// Start from these weights (a `model.bpk`, a checkpoint folder or a run folder) instead
+    /// of a random initialisation; the optimizer starts afresh. Ignored by `--resume`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<PathBuf>,
 }
 
 fn default_out() -> PathBuf {
@@ -227,6 +231,11 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     }
     let mut optim = adam.init();
     let mut state = TrainState::default();
+    if let (Some(init), false) = (&cfg.init, opts.resume) {
+        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
+        model = crate::nn::weights::load_into(model, &weights, "FPFDCNN", &config)?;
+        log(&format!("  initialised from {}", weights.display()));
+    }
     if opts.resume {
         let ckpt = run
             .latest()?

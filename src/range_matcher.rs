@@ -278,10 +278,7 @@ pub fn estimate_affine(
     };
     let mut best: Vec<usize> = Vec::new();
     for _ in 0..cfg.iterations {
-        let mut idx = [0usize; 3];
-        for k in 0..3 {
-            idx[k] = rng.random_range(0..pairs.len());
-        }
+        let idx: [usize; 3] = std::array::from_fn(|_| rng.random_range(0..pairs.len()));
         if idx[0] == idx[1] || idx[1] == idx[2] || idx[0] == idx[2] {
             continue;
         }
@@ -353,7 +350,7 @@ pub fn range_match_centred(
             "range matcher: descriptor dimension must be positive",
         ));
     }
-    if !(cfg.window > 0.0) || cfg.window.is_nan() {
+    if cfg.window.is_nan() || cfg.window <= 0.0 {
         return Err(Error::msg(format!(
             "range matcher: window side must be a positive number of pixels, got {}",
             cfg.window

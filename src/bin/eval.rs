@@ -101,6 +101,12 @@ struct MatchingArgs {
     /// descriptor matches, RANSAC) moves the keypoint, instead of at the keypoint itself.
     #[arg(long)]
     guided: bool,
+    /// Refine FPFDCNN keypoints to the image corner within this radius (0: off).
+    #[arg(long, default_value_t = 0)]
+    subpixel: usize,
+    /// FPFDCNN non-maximum suppression radius, pixels.
+    #[arg(long, default_value_t = 4)]
+    nms: usize,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -188,6 +194,8 @@ fn matching(a: MatchingArgs) -> Result<()> {
         .map(|p| {
             let cfg = DetectorConfig {
                 input_scale: a.fpfdcnn_scale,
+                subpixel_radius: a.subpixel,
+                nms_radius: a.nms,
                 ..Default::default()
             };
             FpfdcnnDetector::load(p, a.backend, cfg)

@@ -6,6 +6,7 @@ pub mod bf_matcher;
 pub mod harris;
 pub mod orb;
 pub mod patch;
+pub mod subpix;
 
 pub use bf_matcher::{HammingMatch, bf_match, hamming};
 pub use harris::{HarrisConfig, Keypoint, harris_corners};

@@ -77,6 +77,11 @@ pub struct ConditionResult {
     pub pnp_failures: usize,
     /// Mean keypoints per image.
     pub keypoints: f64,
+    /// Share of judged matches within 2, 5, 10 and 20 px of the ground-truth
+    /// projection (5 px is the accuracy above): tells localisation errors from
+    /// wrong partners.
+    #[serde(default)]
+    pub within_px: Vec<(f64, f64)>,
 }
 
 /// One method's results.
@@ -111,6 +116,7 @@ struct Acc {
     failures: usize,
     keypoints: usize,
     images: usize,
+    errors: Vec<f64>,
 }
 
 impl Acc {
@@ -128,6 +134,13 @@ impl Acc {
             mean_trans_error_m: mean(&self.trans),
             pnp_failures: self.failures,
             keypoints: self.keypoints as f64 / self.images.max(1) as f64,
+            within_px: [2.0, 5.0, 10.0, 20.0]
+                .iter()
+                .map(|&t| {
+                    let n = self.errors.iter().filter(|e| **e <= t).count();
+                    (t, n as f64 / self.errors.len().max(1) as f64)
+                })
+                .collect(),
         }
     }
 }
@@ -203,6 +216,7 @@ fn score(acc: &mut Acc, matches: &PixelMatches, keypoints: usize, gt: &PairGt<'_
         judged.iter().filter(|e| **e <= CORRECT_MATCH_PX).count(),
         judged.len(),
     ));
+    acc.errors.extend(&judged);
     acc.keypoints += keypoints;
     acc.images += 2;
     let (mut pts, mut px) = (Vec::new(), Vec::new());
@@ -429,7 +443,7 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
 
 pub fn markdown(r: &MatchingReport) -> String {
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image |\n|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px |\n|---|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,
@@ -445,11 +459,16 @@ pub fn markdown(r: &MatchingReport) -> String {
     }
     let row = |s: &mut String, scen: &str, name: &str, c: &ConditionResult| {
         s.push_str(&format!(
-            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} |\n",
+            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} | {} |\n",
             100.0 * c.accuracy,
             c.correct,
             c.matches,
-            c.keypoints
+            c.keypoints,
+            c.within_px
+                .iter()
+                .map(|(_, f)| format!("{:.0}", 100.0 * f))
+                .collect::<Vec<_>>()
+                .join(" / ")
         ));
     };
     for (name, m) in &methods {

@@ -31,6 +31,9 @@ pub struct DetectorConfig {
     /// network trained at 240x320 on 480x640 frames); keypoints are reported
     /// in the original image's pixels.
     pub input_scale: f32,
+    /// Refine keypoints to the corner in a window of this radius on the full-resolution
+    /// image ([`crate::features::subpix`]); 0: the probability map's pixel.
+    pub subpixel_radius: usize,
 }
 
 impl Default for DetectorConfig {
@@ -41,6 +44,7 @@ impl Default for DetectorConfig {
             top_k: 500,
             border: 4,
             input_scale: 1.0,
+            subpixel_radius: 0,
         }
     }
 }
@@ -168,9 +172,26 @@ impl FpfdcnnDetector {
                 "detector input_scale {s} must be in (0, 4]"
             )));
         }
-        if s == 1.0 {
-            return self.detect_at_native(gray);
+        let mut f = if s == 1.0 {
+            self.detect_at_native(gray)?
+        } else {
+            self.detect_scaled(gray, s)?
+        };
+        if self.config.subpixel_radius > 0 {
+            use crate::features::subpix::{SubPixConfig, gradients, refine_corner};
+            let cfg = SubPixConfig {
+                radius: self.config.subpixel_radius,
+                ..SubPixConfig::default()
+            };
+            let (gx, gy) = gradients(&crate::raster::GrayF32::from_gray(gray), &cfg);
+            for p in f.points.iter_mut() {
+                *p = refine_corner(&gx, &gy, *p, &cfg);
+            }
         }
+        Ok(f)
+    }
+
+    fn detect_scaled(&self, gray: &GrayImage, s: f32) -> Result<Features> {
         let (w0, h0) = (gray.width(), gray.height());
         let (w, h) = (
             ((w0 as f32) * s).round().max(1.0) as u32,
@@ -268,6 +289,7 @@ mod tests {
             top_k: 0,
             border: 2,
             input_scale: 1.0,
+            subpixel_radius: 0,
         };
         let k = select_keypoints(&p, w, h, &cfg);
         assert_eq!(k, vec![(5, 5, 0.9), (12, 5, 0.7)]);

@@ -38,6 +38,8 @@ pub struct FeatureConfig {
     pub fpfdcnn_border: usize,
     /// FPFDCNN: image resize factor before the network (0.5 for weights trained at 240x320).
     pub fpfdcnn_input_scale: f32,
+    /// FPFDCNN: refine keypoints to the image corner within this radius, pixels (0: off).
+    pub fpfdcnn_subpixel_radius: usize,
     /// ORB: FAST threshold, grey levels.
     pub orb_fast_threshold: u8,
     /// ORB: when fewer than half of `top_k` keypoints are found, detect again
@@ -61,6 +63,7 @@ impl Default for FeatureConfig {
             orb_levels: 8,
             orb_scale_factor: 1.2,
             fpfdcnn_input_scale: 1.0,
+            fpfdcnn_subpixel_radius: 0,
         }
     }
 }
@@ -73,6 +76,7 @@ impl FeatureConfig {
             top_k: self.top_k,
             border: self.fpfdcnn_border,
             input_scale: self.fpfdcnn_input_scale,
+            subpixel_radius: self.fpfdcnn_subpixel_radius,
         }
     }
 

@@ -53,6 +53,18 @@ struct RunArgs {
 enum Command {
     /// Print every layer's output shape for one input, and the parameter count.
     Summary(SummaryArgs),
+    /// Write a checkpoint's weights in half precision with its config beside them
+    /// (`OUT/model.bpk`, `OUT/config.toml`): the layout of the bundled weights.
+    Export(ExportArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct ExportArgs {
+    /// Checkpoint: a `model.bpk`, its folder, or a run folder (its newest checkpoint).
+    checkpoint: PathBuf,
+    /// Output folder.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -83,6 +95,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Summary(args)) => summary(&args),
+        Some(Command::Export(args)) => export(&args),
         None => train(cli.run),
     }
 }
@@ -107,6 +120,43 @@ fn train(args: RunArgs) -> Result<()> {
             config.display()
         ),
     }
+    Ok(())
+}
+
+/// `train export`: half-precision weights and the training config, written atomically.
+fn export(args: &ExportArgs) -> Result<()> {
+    use sdf_slam::nn::weights::{resolve_checkpoint, save_f16};
+    let (weights, config) = resolve_checkpoint(&args.checkpoint)?;
+    let text = sdf_slam::io::read_text(&config)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let target = args.out.join("model.bpk");
+    match config_model(&text, &config)?.as_str() {
+        "fpfdcnn" => {
+            let det = sdf_slam::fpfdcnn::inference::FpfdcnnDetector::load(
+                &weights,
+                BackendKind::Flex,
+                Default::default(),
+            )?;
+            save_f16(det.model, &target)?;
+        }
+        "sdfcnn" => {
+            let p = sdf_slam::sdfcnn::inference::SdfcnnPredictor::load(&weights, BackendKind::Flex)?;
+            let tmp = sdf_slam::io::temp_path(&target);
+            p.save_f16(&tmp)?;
+            std::fs::rename(&tmp, &target)
+                .with_context(|| format!("cannot write {}", target.display()))?;
+        }
+        other => anyhow::bail!("{}: no network called \"{other}\"", config.display()),
+    }
+    sdf_slam::io::write_atomic(&args.out.join("config.toml"), text.as_bytes())?;
+    let size = std::fs::metadata(&target)?.len();
+    println!(
+        "{} -> {} ({:.1} MB, half precision) and config.toml",
+        weights.display(),
+        target.display(),
+        size as f64 / 1e6
+    );
     Ok(())
 }
 

@@ -367,21 +367,34 @@ fn lookup<'a>(value: &'a Value, path: &str) -> Option<&'a Value> {
 }
 
 /// A value as shown in folder names, tables and plots: strings without quotes, numbers as
-/// Rust prints them, arrays and tables as inline TOML.
+/// Rust prints them (very large or small ones in exponent form), arrays as `[a, b]`.
 pub fn value_label(v: &Value) -> String {
     match v {
         Value::String(s) => s.clone(),
         Value::Integer(i) => i.to_string(),
+        Value::Float(f) if *f != 0.0 && !(1e-4..1e6).contains(&f.abs()) => format!("{f:e}"),
         Value::Float(f) => f.to_string(),
         Value::Boolean(b) => b.to_string(),
-        other => other.to_string(),
+        Value::Array(a) => {
+            let items: Vec<String> = a.iter().map(value_label).collect();
+            format!("[{}]", items.join(", "))
+        }
+        Value::Table(t) => {
+            let items: Vec<String> = t
+                .iter()
+                .map(|(k, v)| format!("{k} = {}", value_label(v)))
+                .collect();
+            format!("{{{}}}", items.join(", "))
+        }
+        Value::Datetime(d) => d.to_string(),
     }
 }
 
-/// A string usable in a folder name.
+/// A string usable in a folder name: brackets, braces and quotes are dropped, other
+/// characters outside `[A-Za-z0-9._+=-]` become `-`.
 fn sanitize(s: &str) -> String {
     let mut out = String::new();
-    for c in s.chars() {
+    for c in s.chars().filter(|c| !"[]{}\"'".contains(*c)) {
         let c = if c.is_ascii_alphanumeric() || "._+-=".contains(c) {
             c
         } else {
@@ -745,7 +758,11 @@ impl Sweep {
                 .iter()
                 .zip(&values)
                 .zip(&short)
-                .map(|((_, v), s)| sanitize(&format!("{s}={}", value_label(v))))
+                .map(|((_, v), s)| {
+                    let label = value_label(v);
+                    let label = if label == "[]" { "empty" } else { &label };
+                    sanitize(&format!("{s}={label}"))
+                })
                 .collect::<Vec<_>>()
                 .join("_");
             points.push(Point { values, name });
@@ -878,6 +895,18 @@ impl Sweep {
         Ok(())
     }
 
+    /// `field = value, ..., seed = n` of a run.
+    pub fn describe_point(&self, run: &Run) -> String {
+        let mut parts: Vec<String> = self
+            .keys
+            .iter()
+            .zip(&self.points[run.point].values)
+            .map(|(k, v)| format!("{k} = {v}"))
+            .collect();
+        parts.push(format!("seed = {}", run.seed));
+        parts.join(", ")
+    }
+
     /// Short names of the varied fields (the last path segment, or the whole path where two
     /// fields end the same way).
     pub fn labels(&self) -> Vec<String> {
@@ -958,18 +987,49 @@ fn duplicate<T: PartialEq + std::fmt::Display>(list: &[T]) -> Option<String> {
         .map(|(_, v)| v.to_string())
 }
 
-/// Appends a line to `out/sweep.log` (and prints it).
+/// Prints a line and appends it to `out/sweep.log`.
 fn log(out: &Path, line: &str) {
     println!("{line}");
-    let path = out.join("sweep.log");
+    append_line(&out.join("sweep.log"), line);
+}
+
+/// Appends a time-stamped line to a log file (a warning if that fails).
+fn append_line(path: &Path, line: &str) {
     let stamp = utc_now();
     let write = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
-        .open(&path)
+        .open(path)
         .and_then(|mut f| writeln!(f, "{stamp} {line}"));
     if let Err(e) = write {
         eprintln!("warning: cannot append to {}: {e}", path.display());
+    }
+}
+
+/// Appends the epochs after `done` of a run's `metrics.csv` to its `train.log`.
+fn log_epochs(run: &Run, done: usize) {
+    let log = run.dir.join("train.log");
+    match report::read_metrics(&run.dir.join("metrics.csv")) {
+        Ok(rows) => {
+            for r in rows.iter().filter(|r| r.epoch > done) {
+                let values: Vec<String> = r
+                    .values
+                    .iter()
+                    .map(|(k, v)| format!("{k} {v:.4}"))
+                    .collect();
+                append_line(
+                    &log,
+                    &format!(
+                        "epoch {}/{} ({:.1} s): {}",
+                        r.epoch,
+                        run.epochs,
+                        r.seconds,
+                        values.join(", ")
+                    ),
+                );
+            }
+        }
+        Err(e) => append_line(&log, &format!("no metrics: {e}")),
     }
 }
 
@@ -1062,7 +1122,11 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
         let how = if done > 0 {
             format!("resuming after epoch {done} of {}", run.epochs)
         } else {
-            format!("{} epochs", run.epochs)
+            format!(
+                "{} epoch{}",
+                run.epochs,
+                if run.epochs == 1 { "" } else { "s" }
+            )
         };
         log(
             &sweep.out,
@@ -1079,9 +1143,26 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
             epochs: Some(run.epochs),
             quiet: opts.quiet,
         };
+        std::fs::create_dir_all(&run.dir).map_err(|e| Error::io(&run.dir, e))?;
+        let run_log = run.dir.join("train.log");
+        append_line(
+            &run_log,
+            &format!(
+                "sweep {} run {}: {how}, config {} with {}",
+                path.display(),
+                run.name,
+                sweep.base.display(),
+                sweep.describe_point(run)
+            ),
+        );
         let started = Instant::now();
         let result = (sweep.trainer.run)(&sweep.base, &run.config, &run_opts);
         let secs = started.elapsed().as_secs_f64();
+        log_epochs(run, done);
+        match &result {
+            Ok(()) => append_line(&run_log, &format!("finished in {}", fmt_duration(secs))),
+            Err(e) => append_line(&run_log, &format!("FAILED: {e}")),
+        }
         match result {
             Ok(()) => {
                 trained += 1;

@@ -351,7 +351,8 @@ pub fn results_md(sweep: &Sweep, results: &[RunResult<'_>]) -> (String, Option<S
     let _ = writeln!(
         s,
         "Ranked by **{}** at the {at} ({better} is better). Cells: mean ± sample standard \
-         deviation over the finished seeds, at the final epoch unless marked *best*.\n",
+         deviation over the finished seeds, at the final epoch unless marked *best*; time/run \
+         is the sum of the epoch times (training and validation).\n",
         sel.metric
     );
     let metrics = reported(sweep);
@@ -570,7 +571,10 @@ fn plot_losses(sweep: &Sweep, results: &[RunResult<'_>]) -> Result<()> {
         if series.is_empty() {
             continue;
         }
-        let log_y = series.iter().all(|s| s.points.iter().all(|p| p.1 > 0.0));
+        // A log axis when the losses span more than a decade (plotters labels decades).
+        let ys = || series.iter().flat_map(|s| s.points.iter().map(|p| p.1));
+        let (lo, hi) = ys().fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+        let log_y = lo > 0.0 && hi / lo > 20.0;
         charts.push(Chart {
             title,
             x_label: "epoch",

@@ -478,9 +478,15 @@ fn results_tables_and_plots_from_run_folders() {
 
 #[test]
 fn names_labels_and_statistics() {
-    assert_eq!(sanitize("lr_steps=[[20, 0.01]]"), "lr_steps=-20-0.01");
+    assert_eq!(sanitize("lr_steps=[[20, 0.01]]"), "lr_steps=20-0.01");
+    assert_eq!(sanitize("name=\"a b/c\""), "name=a-b-c");
     assert_eq!(value_label(&Value::Float(0.1)), "0.1");
     assert_eq!(value_label(&Value::Float(1.0)), "1");
+    assert_eq!(value_label(&Value::Float(1e30)), "1e30");
+    assert_eq!(value_label(&Value::Float(-2e-5)), "-2e-5");
+    assert_eq!(value_label(&Value::Float(0.0)), "0");
+    let steps: Value = toml::from_str::<Table>("v = [[1, 1e30], [5, 0.5]]").unwrap()["v"].clone();
+    assert_eq!(value_label(&steps), "[[1, 1e30], [5, 0.5]]");
     assert_eq!(value_label(&Value::String("berhu".into())), "berhu");
     let keys = [
         "optimizer.lr".to_string(),

@@ -120,7 +120,7 @@ fn train(args: RunArgs) -> Result<()> {
         "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
         "sweep" => sweep::run(&config, &text, &opts)?,
         other => anyhow::bail!(
-            "{}: unknown model '{other}' (fpfdcnn, sdfcnn or sweep)",
+            "{}: unknown model '{other}' (fpfdcnn or sdfcnn)",
             config.display()
         ),
     }

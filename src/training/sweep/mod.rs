@@ -787,7 +787,7 @@ impl Sweep {
             let text = toml::to_string(t).map_err(|e| Error::msg(e.to_string()))?;
             (trainer.check_data)(&text, &base).map_err(|e| {
                 Error::msg(format!(
-                    "{}: the training data of base {} cannot be opened: {e}",
+                    "{}: the training data of base {} cannot be opened (its comments may say how to make them): {e}",
                     path.display(),
                     base.display()
                 ))
@@ -1109,13 +1109,14 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
             );
             continue;
         }
-        let left = n - k;
+        // Runs still to train, this one included; the estimate uses this session's mean.
+        let left = (k..n).filter(|&j| states[j] < sweep.runs[j].epochs).count();
         let eta = if seconds.is_empty() {
             String::new()
         } else {
             let mean = seconds.iter().sum::<f64>() / seconds.len() as f64;
             format!(
-                ", about {} left for {left} runs",
+                ", about {} left for {left} run(s)",
                 fmt_duration(mean * left as f64)
             )
         };

@@ -471,7 +471,7 @@ fn results_tables_and_plots_from_run_folders() {
     assert_eq!(std::fs::read_to_string(&csv0).expect("csv"), full);
     // A malformed metrics.csv names its file and line.
     std::fs::write(&csv0, "epoch,lr,seconds,val_miou\n1,0.1,2.0,abc\n").expect("write");
-    let e = report::collect(&s).err().expect("bad csv").to_string();
+    let e = report::collect(&s).expect_err("bad csv").to_string();
     assert!(e.contains("metrics.csv:2:") && e.contains("abc"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -500,4 +500,30 @@ fn names_labels_and_statistics() {
     assert!(!larger_is_better("val_rms") && !larger_is_better("val_detector"));
     let stamp = utc_now();
     assert!(stamp.len() == 19 && stamp.starts_with("20"), "{stamp}");
+}
+
+#[test]
+fn shipped_sweeps_validate() {
+    let p = Path::new("configs/sweep_fpfdcnn_tiny.toml");
+    let text = std::fs::read_to_string(p).expect("shipped sweep");
+    let s = Sweep::load(p, &text, &RunOptions::default()).expect("valid");
+    assert_eq!((s.trainer.model, s.runs.len()), ("fpfdcnn", 4));
+    // The λ x lr sweep: its data are generated (datasets/generated/sweep, not in git), so
+    // without them only the data check, which comes after every point's, may fail.
+    let p = Path::new("configs/sweep_lambda_lr.toml");
+    let text = std::fs::read_to_string(p).expect("shipped sweep");
+    match Sweep::load(p, &text, &RunOptions::default()) {
+        Ok(s) => {
+            assert_eq!(s.keys, ["loss.lambda", "optimizer.lr"]);
+            assert_eq!(s.runs.len(), 8);
+            assert_eq!(s.runs[2].name, "lambda=0.4_lr=0.01_seed=1");
+        }
+        Err(e) => {
+            let e = e.to_string();
+            assert!(
+                e.contains("cannot be opened") && e.contains("datasets/generated/sweep"),
+                "{e}"
+            );
+        }
+    }
 }

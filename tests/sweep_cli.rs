@@ -137,6 +137,11 @@ fn sweep_runs_resumes_after_a_kill_and_reports() {
         "{plan}"
     );
     assert!(!out.exists(), "a dry run writes nothing");
+    let base = dir.join("base.toml");
+    let checked = ok(train(&["--config", base.to_str().unwrap(), "--dry-run"])
+        .output()
+        .unwrap());
+    assert!(checked.contains("a valid sdfcnn config"), "{checked}");
 
     // 1. Every run trains one epoch (`--epochs` applies to all runs).
     let log = ok(train(&["--config", cfg, "--quiet", "--epochs", "1"])

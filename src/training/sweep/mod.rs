@@ -257,7 +257,6 @@ pub struct Run {
 pub struct Sweep {
     /// The sweep file.
     pub path: PathBuf,
-    pub text: String,
     pub trainer: Trainer,
     /// The base training config.
     pub base: PathBuf,
@@ -812,10 +811,16 @@ impl Sweep {
                     .zip(&point.values)
                     .map(|(k, v)| format!("{k} = {v}"))
                     .collect();
+                // Only file names in the comment: the text must not depend on how the sweep
+                // was invoked (the trainer compares it when resuming).
+                let file_name = |p: &Path| {
+                    p.file_name()
+                        .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+                };
                 let config = format!(
                     "# Run {name} of the sweep {}:\n# base {} with {}, seed = {seed}.\n{body}",
-                    path.display(),
-                    base.display(),
+                    file_name(path),
+                    file_name(&base),
                     values.join(", ")
                 );
                 let mut normal = normal.clone();
@@ -844,7 +849,6 @@ impl Sweep {
         }
         let sweep = Sweep {
             path: path.to_path_buf(),
-            text: text.to_string(),
             trainer,
             base,
             out,

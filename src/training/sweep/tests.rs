@@ -102,6 +102,9 @@ fn sdfcnn_sweep_plans_every_point_and_seed() {
     let s = Sweep::load(&path, &text, &opts).expect("valid");
     assert!(s.runs.iter().all(|r| r.epochs == 5));
     assert!(s.runs[0].dir.starts_with(dir.join("elsewhere")));
+    // The run configs do not depend on how the sweep file is named (resuming compares them).
+    let other = Sweep::load(&dir.join(".").join("sweep.toml"), &text, &opts).expect("valid");
+    assert_eq!(other.runs[3].config, s.runs[3].config);
     let plan = s.describe().expect("plan");
     assert!(
         plan.contains("[8/8] lr=0.1_lambda=0.8_seed=2 (to run)"),

@@ -38,6 +38,28 @@ pub struct Series<'a> {
     pub points: Vec<(f64, f64)>,
 }
 
+/// Colour of the `k`-th series: the palette after the reference colour, then hues spaced by
+/// the golden angle (so many series stay distinguishable).
+fn series_color(k: usize) -> RGBColor {
+    if k < PALETTE.len() {
+        return PALETTE[(k + 1) % PALETTE.len()];
+    }
+    let hue = ((k - PALETTE.len()) as f64 * 0.618_033_988_75 + 0.1).fract();
+    let (r, g, b) = HSLColor(hue, 0.7, 0.42).rgb();
+    RGBColor(r, g, b)
+}
+
+/// One chart of a [`line_charts`] figure.
+pub struct Chart<'a> {
+    pub title: &'a str,
+    pub x_label: &'a str,
+    pub y_label: &'a str,
+    pub series: Vec<Series<'a>>,
+    pub log_y: bool,
+    /// Draw a dot at every point (for curves with few points).
+    pub markers: bool,
+}
+
 fn plot_err(e: impl std::fmt::Display) -> Error {
     Error::msg(format!("plotting failed: {e}"))
 }
@@ -83,7 +105,25 @@ pub fn line_chart(
     log_y: bool,
 ) -> Result<()> {
     render(path.as_ref(), (1000, 640), |root| {
-        draw_lines(&root, title, x_label, y_label, series, log_y)
+        draw_lines(&root, title, x_label, y_label, series, log_y, false)
+    })
+}
+
+/// Several line charts in one PNG, `columns` a row.
+pub fn line_charts(path: impl AsRef<Path>, charts: &[Chart<'_>], columns: usize) -> Result<()> {
+    if charts.is_empty() {
+        return Err(Error::msg("a figure needs at least one chart"));
+    }
+    let columns = columns.clamp(1, charts.len());
+    let rows = charts.len().div_ceil(columns);
+    let size = (columns as u32 * 900, rows as u32 * 640);
+    render(path.as_ref(), size, |root| {
+        for (area, c) in root.split_evenly((rows, columns)).iter().zip(charts) {
+            draw_lines(
+                area, c.title, c.x_label, c.y_label, &c.series, c.log_y, c.markers,
+            )?;
+        }
+        Ok(())
     })
 }
 
@@ -94,6 +134,7 @@ fn draw_lines<DB: DrawingBackend>(
     y_label: &str,
     series: &[Series<'_>],
     log_y: bool,
+    markers: bool,
 ) -> Result<()> {
     let (x0, x1) = padded_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
     let ys = || series.iter().flat_map(|s| s.points.iter().map(|p| p.1));
@@ -115,7 +156,7 @@ fn draw_lines<DB: DrawingBackend>(
                 .draw()
                 .map_err(plot_err)?;
             for (k, s) in series.iter().enumerate() {
-                let c = PALETTE[(k + 1) % PALETTE.len()];
+                let c = series_color(k);
                 chart
                     .draw_series(LineSeries::new(s.points.iter().copied(), c.stroke_width(2)))
                     .map_err(plot_err)?
@@ -123,6 +164,11 @@ fn draw_lines<DB: DrawingBackend>(
                     .legend(move |(x, y)| {
                         PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(3))
                     });
+                if markers {
+                    chart
+                        .draw_series(s.points.iter().map(|&p| Circle::new(p, 4, c.filled())))
+                        .map_err(plot_err)?;
+                }
             }
             if series.len() > 1 {
                 chart
@@ -260,6 +306,7 @@ pub fn trajectory_figure(
                 "time (s)",
                 label,
                 &series,
+                false,
                 false,
             )?;
         }

@@ -1,7 +1,9 @@
 //! `train`: command-line entry point for the SDF-SLAM networks.
 //!
 //! `train --config FILE [--resume] [--out DIR] [--backend ndarray|flex] [--epochs N]` trains
-//! the network the config names (`model = "fpfdcnn"` or `"sdfcnn"`).
+//! the network the config names (`model = "fpfdcnn"` or `"sdfcnn"`), or runs a sweep of
+//! training runs (`model = "sweep"`, see `sdf_slam::training::sweep`). `--dry-run` only
+//! checks the config (and lists a sweep's runs).
 //!
 //! `train summary fpfdcnn|sdfcnn` runs one forward pass on a zero image and prints each layer's
 //! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
@@ -13,6 +15,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
 use sdf_slam::nn::{ShapeTrace, trainable_params};
 use sdf_slam::sdfcnn::SdfcnnConfig;
+use sdf_slam::training::sweep::{self, Sweep};
 use sdf_slam::training::{BackendKind, RunOptions, config_model};
 use std::path::PathBuf;
 
@@ -32,7 +35,7 @@ struct RunArgs {
     /// Training config (TOML), e.g. configs/fpfdcnn.toml.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Continue from the last checkpoint of the output folder.
+    /// Continue from the last checkpoint of the output folder (sweeps always resume).
     #[arg(long)]
     resume: bool,
     /// Output folder (overrides the config's `out`).
@@ -47,6 +50,9 @@ struct RunArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Check the config (a sweep: every point) and list a sweep's runs; train nothing.
+    #[arg(long)]
+    dry_run: bool,
 }
 
 #[derive(Subcommand, Debug)]
@@ -112,9 +118,20 @@ fn train(args: RunArgs) -> Result<()> {
         epochs: args.epochs,
         quiet: args.quiet,
     };
-    match config_model(&text, &config)?.as_str() {
+    let model = config_model(&text, &config)?;
+    if args.dry_run {
+        if model == "sweep" {
+            print!("{}", Sweep::load(&config, &text, &opts)?.describe()?);
+        } else {
+            sweep::check_training_config(&model, &config, &text)?;
+            println!("{}: a valid {model} config", config.display());
+        }
+        return Ok(());
+    }
+    match model.as_str() {
         "fpfdcnn" => sdf_slam::fpfdcnn::training::run(&config, &text, &opts)?,
         "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
+        "sweep" => sweep::run(&config, &text, &opts)?,
         other => anyhow::bail!(
             "{}: no trainer for model = \"{other}\" (expected \"fpfdcnn\" or \"sdfcnn\")",
             config.display()

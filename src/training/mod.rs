@@ -1,10 +1,11 @@
 //! What both trainers share: run folders with atomic per-epoch checkpoints and
 //! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
-//! data order, and the NaN guard.
+//! data order, and the NaN guard; and config-file sweeps over them ([`sweep`]).
 
 pub mod backend;
 pub mod checkpoint;
 pub mod history;
+pub mod sweep;
 
 pub use backend::BackendKind;
 pub use checkpoint::{Checkpoint, RunDir, TrainState};
@@ -55,7 +56,7 @@ pub fn config_model(toml_text: &str, path: &std::path::Path) -> crate::Result<St
         Some(m) => Ok(m.to_string()),
         None => Err(crate::Error::invalid(
             path,
-            "missing top-level `model = \"fpfdcnn\"` or `model = \"sdfcnn\"`",
+            "missing top-level `model = \"fpfdcnn\"`, `model = \"sdfcnn\"` or `model = \"sweep\"`",
         )),
     }
 }

@@ -51,7 +51,14 @@ fn missing_sequence_and_monocular_without_sdfcnn_are_errors() {
     );
     let fx = fixture();
     let (ok, _, err) = slam(
-        &["--sequence", &fx, "--depth", "predicted", "--labels", "none"],
+        &[
+            "--sequence",
+            &fx,
+            "--depth",
+            "predicted",
+            "--labels",
+            "none",
+        ],
         &dir,
     );
     assert!(!ok);
@@ -121,7 +128,14 @@ fn bad_camera_file_and_checkpoint_fail_before_processing() {
     assert!(!out.exists());
     // FPFDCNN weights given as SDFCNN weights.
     let (ok, _, err) = slam(
-        &["--sequence", &fx, "--features", "orb", "--sdfcnn", ckpt.to_str().unwrap()],
+        &[
+            "--sequence",
+            &fx,
+            "--features",
+            "orb",
+            "--sdfcnn",
+            ckpt.to_str().unwrap(),
+        ],
         &dir,
     );
     assert!(!ok);
@@ -234,7 +248,10 @@ fn no_arguments_run_the_default_sequence_with_the_bundled_weights() {
     tiny_default_sequence(&dir, 6);
     let (ok, stdout, err) = slam(&[], &dir);
     assert!(ok, "{err}");
-    assert!(err.contains(DEFAULT_SEQUENCE) && err.contains("RGB-D"), "{err}");
+    assert!(
+        err.contains(DEFAULT_SEQUENCE) && err.contains("RGB-D"),
+        "{err}"
+    );
     if bundled(BUNDLED_FPFDCNN) {
         assert!(
             err.contains("fpfdcnn keypoints (") && err.contains(BUNDLED_FPFDCNN),
@@ -257,7 +274,14 @@ fn no_arguments_run_the_default_sequence_with_the_bundled_weights() {
             "{err}"
         );
     }
-    for what in ["frames 6 / 6", "keyframes", "frames/s", "ATE", "labels:", "wrote:"] {
+    for what in [
+        "frames 6 / 6",
+        "keyframes",
+        "frames/s",
+        "ATE",
+        "labels:",
+        "wrote:",
+    ] {
         assert!(stdout.contains(what), "{what}: {stdout}");
     }
     let out = dir.join("runs/slam/default_sequence");
@@ -325,7 +349,10 @@ fn weights_in_the_current_directory_are_the_defaults() {
     assert_eq!(json["features"], "fpfdcnn");
     assert_eq!(json["labels"], "sdfcnn");
     // --labels gt is used only when asked for.
-    let (ok, _, err) = slam(&["--single-thread", "--labels", "gt", "--max-frames", "2"], &dir);
+    let (ok, _, err) = slam(
+        &["--single-thread", "--labels", "gt", "--max-frames", "2"],
+        &dir,
+    );
     assert!(ok, "{err}");
     assert!(err.contains("gt labels"), "{err}");
 }

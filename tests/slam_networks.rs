@@ -14,8 +14,7 @@ use sdf_slam::slam::report::write_outputs;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
-    DepthMode, OrbSource, SdfcnnSource, SemanticInput, SemanticSource, Slam, SlamConfig,
-    SlamOutput,
+    DepthMode, OrbSource, SdfcnnSource, SemanticInput, SemanticSource, Slam, SlamConfig, SlamOutput,
 };
 use sdf_slam::training::BackendKind;
 use sdf_slam::trajectory::Trajectory;
@@ -115,7 +114,10 @@ impl<S: SemanticSource> SemanticSource for Counting<S> {
     fn provides_depth(&self) -> bool {
         self.inner.provides_depth()
     }
-    fn predict(&self, input: &SemanticInput<'_>) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
+    fn predict(
+        &self,
+        input: &SemanticInput<'_>,
+    ) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
         self.calls.lock().unwrap().push(input.index);
         self.inner.predict(input)
     }
@@ -166,7 +168,10 @@ fn default_sequence_generation_writes_a_readable_tum_sequence() {
     for list in ["labels.txt", "depth_gt.txt", "camera.toml", "scene.json"] {
         assert!(seq.join(list).is_file(), "{list}");
     }
-    assert_eq!(Camera::from_file(seq.join("camera.toml")).unwrap().width, 160);
+    assert_eq!(
+        Camera::from_file(seq.join("camera.toml")).unwrap().width,
+        160
+    );
     // Nothing but the sequence is left beside it (the staging folder is gone).
     let parent: Vec<_> = std::fs::read_dir(seq.parent().unwrap())
         .unwrap()
@@ -175,7 +180,9 @@ fn default_sequence_generation_writes_a_readable_tum_sequence() {
     assert_eq!(parent, vec![std::ffi::OsString::from("default_sequence")]);
     // An existing sequence is never overwritten.
     let cfg = default_sequence_config();
-    let e = generate_sequence(&cfg, &seq, &|_| {}).unwrap_err().to_string();
+    let e = generate_sequence(&cfg, &seq, &|_| {})
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("already exists"), "{e}");
     assert_eq!(TumSequence::open(&seq).unwrap().len(), FRAMES);
 }
@@ -185,7 +192,11 @@ fn rgbd_map_takes_its_labels_from_sdfcnn_once_per_keyframe() {
     let (out, calls) = run(DepthMode::Sensor, false);
     assert_eq!(out.frames.len(), FRAMES);
     assert_eq!(out.semantic_source, "sdfcnn");
-    assert!(out.semantic_failures.is_empty(), "{:?}", out.semantic_failures);
+    assert!(
+        out.semantic_failures.is_empty(),
+        "{:?}",
+        out.semantic_failures
+    );
     // SDFCNN ran on each keyframe's frame exactly once, and on no other frame.
     let kf_frames: Vec<usize> = out.map.keyframes.iter().map(|k| k.frame_index).collect();
     assert!(!kf_frames.is_empty());
@@ -244,7 +255,13 @@ fn monocular_mode_tracks_with_sdfcnn_depth() {
     );
     assert!(kf.track.n_points() > 20, "{}", kf.track.n_points());
     assert_eq!(kf.track.points_cam, expected);
-    assert!(kf.track.points_cam.iter().flatten().all(|p| (p.z - 2.0).abs() < 1e-3));
+    assert!(
+        kf.track
+            .points_cam
+            .iter()
+            .flatten()
+            .all(|p| (p.z - 2.0).abs() < 1e-3)
+    );
     // The map is fused from the predicted depth, not the sensor's.
     assert!(kf.view.depth.data.iter().all(|d| (d - PLANE).abs() < 1e-3));
     // With 3D points from the network, PnP tracks (without them every frame
@@ -257,10 +274,19 @@ fn monocular_mode_tracks_with_sdfcnn_depth() {
     assert!(tracked >= FRAMES / 2, "{:?}", out.tracking);
     let traj = out.trajectory();
     assert_eq!(traj.len(), FRAMES);
-    assert!(traj.poses.iter().all(|p| p.translation.vector.iter().all(|v| v.is_finite())));
+    assert!(
+        traj.poses
+            .iter()
+            .all(|p| p.translation.vector.iter().all(|v| v.is_finite()))
+    );
     let dir = tmp_dir("mono_out");
     sdf_slam::slam::report::write_trajectory(&out, &dir).unwrap();
-    assert_eq!(Trajectory::read_tum(dir.join("trajectory.txt")).unwrap().len(), FRAMES);
+    assert_eq!(
+        Trajectory::read_tum(dir.join("trajectory.txt"))
+            .unwrap()
+            .len(),
+        FRAMES
+    );
 
     // Three threads (tracking waits for mapping's SDFCNN depth of each new
     // keyframe) give the same trajectory.
@@ -283,16 +309,22 @@ fn sdfcnn_checkpoints_that_do_not_fit_are_clear_errors() {
         TINY_TOML.replace("decoder_dim = 16", "decoder_dim = 8"),
     )
     .unwrap();
-    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray).unwrap_err().to_string();
+    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("model.bpk") && e.contains("config.toml"), "{e}");
     // Another network's checkpoint.
     std::fs::write(dir.join("config.toml"), "model = \"fpfdcnn\"\n").unwrap();
-    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray).unwrap_err().to_string();
+    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not an SDFCNN"), "{e}");
     // Not weights at all.
     std::fs::write(dir.join("config.toml"), TINY_TOML).unwrap();
     std::fs::write(dir.join("model.bpk"), b"garbage").unwrap();
-    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray).unwrap_err().to_string();
+    let e = SdfcnnSource::load(&dir, BackendKind::Ndarray)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("model.bpk"), "{e}");
     // A network that does not predict the map's 40 classes.
     let cfg13 = tiny_config().with_num_classes(13);
@@ -312,7 +344,9 @@ fn half_precision_weights_predict_like_the_network_on_ndarray() {
     // The bundled weights are f16; the default backend (ndarray) has no f16
     // tensors: they are cast to f32 on load.
     let p = predictor();
-    let rgb = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 77]));
+    let rgb = image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, 77])
+    });
     let out = p.predict(&rgb).unwrap();
     assert_eq!((out.labels.width, out.labels.height), (64, 48));
     assert!(out.depth.data.iter().all(|d| (d - PLANE).abs() < 1e-3));

@@ -64,7 +64,9 @@ pub fn default_sequence() -> std::result::Result<PathBuf, PathBuf> {
 
 /// `./x` as `x`.
 fn tidy(p: &Path) -> PathBuf {
-    p.strip_prefix(".").map(Path::to_path_buf).unwrap_or_else(|_| p.to_path_buf())
+    p.strip_prefix(".")
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|_| p.to_path_buf())
 }
 
 /// The synthetic generator's configuration of the default sequence: one room
@@ -147,10 +149,7 @@ mod tests {
         }
         let roots = vec![a.clone(), b.clone()];
         // No config.toml anywhere: not a checkpoint.
-        assert_eq!(
-            find_in(&roots, BUNDLED_SDFCNN, is_checkpoint_folder),
-            None
-        );
+        assert_eq!(find_in(&roots, BUNDLED_SDFCNN, is_checkpoint_folder), None);
         std::fs::write(b.join("weights/sdfcnn/config.toml"), b"").unwrap();
         assert_eq!(
             find_in(&roots, BUNDLED_SDFCNN, is_checkpoint_folder),

@@ -105,7 +105,10 @@ impl SemanticSource for SdfcnnSource {
 
     fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
         let p = self.predictor.predict(input.rgb).map_err(|e| {
-            Error::msg(format!("frame {}: SDFCNN inference failed: {e}", input.index))
+            Error::msg(format!(
+                "frame {}: SDFCNN inference failed: {e}",
+                input.index
+            ))
         })?;
         Ok((p.labels, Some(p.depth)))
     }

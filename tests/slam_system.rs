@@ -539,6 +539,15 @@ fn orb_baseline_config_is_frame_to_frame_odometry() {
     assert_eq!(out.correction.optimisations, 0);
     assert_eq!(out.local.landmarks, 0);
     for k in &out.map.keyframes {
+        // Unit quaternions: every frame's pose seeds the next one's PnP
+        // through the constant-velocity prediction; unnormalised, the norm
+        // error grew 2.4x per frame and scaled the translations.
+        for p in [&k.pose, &k.odom_pose] {
+            assert!(
+                (p.rotation.quaternion().norm() - 1.0).abs() < 1e-12,
+                "{p:?}"
+            );
+        }
         let d = k.odom_pose.inverse() * k.pose;
         assert!(d.translation.vector.norm() < 1e-9 && d.rotation.angle() < 1e-9);
         assert_eq!(k.depth_scale, 1.0);

@@ -137,13 +137,13 @@ fn generate_default_sequence(dest: &Path) -> Result<()> {
     let camera = cfg.camera()?;
     eprintln!(
         "the default sequence {} does not exist yet, generating it (later runs reuse it): one \
-         synthetic room (seed {}), {} frames of a hand-held {:?} at {}x{} with the TUM fr1 \
+         synthetic room (seed {}), {} frames of a {} trajectory at {}x{} with the TUM fr1 \
          camera, sensor and exact depth, NYU40 labels and ground-truth poses; about 1 MB per \
-         frame and under a minute",
+         frame and a minute on two cores",
         dest.display(),
         cfg.seed,
         cfg.frames,
-        cfg.trajectory,
+        format!("{:?}", cfg.trajectory).to_lowercase(),
         camera.width,
         camera.height
     );

@@ -30,6 +30,19 @@ pub fn pose_to_tum(pose: &Pose) -> ([f64; 3], [f64; 4]) {
     ([t.x, t.y, t.z], [q.i, q.j, q.k, q.w])
 }
 
+/// The pose with its rotation quaternion rescaled to unit norm. nalgebra
+/// composes and inverts unit quaternions without renormalising, so rounding
+/// errors add up along chains of products; where a pose feeds back into the
+/// next one (the constant-velocity prediction `T_k T_{k-1}⁻¹ T_k` seeding PnP),
+/// the norm error grows by about 2.4x per frame and a non-unit quaternion
+/// rotates *and scales* points.
+pub fn renormalized(pose: &Pose) -> Pose {
+    Pose::from_parts(
+        pose.translation,
+        UnitQuaternion::new_normalize(pose.rotation.into_inner()),
+    )
+}
+
 /// Interpolates between two poses at `s` in [0, 1]: translation linearly,
 /// rotation by SLERP along the shorter arc (a quaternion sign flip between the
 /// two samples, common in motion-capture files, is handled).
@@ -97,6 +110,22 @@ mod tests {
         assert!((q[0] - 0.1 / n).abs() < 1e-12 && (q[3] - 0.9 / n).abs() < 1e-12);
         assert!(pose_from_tum([0.0; 3], [0.0; 4]).is_none());
         assert!(pose_from_tum([f64::NAN, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]).is_none());
+    }
+
+    #[test]
+    fn renormalized_restores_unit_quaternions_and_keeps_the_pose() {
+        let p = pose_from_tum([1.0, 2.0, 3.0], [0.1, -0.2, 0.3, 0.9]).unwrap();
+        // A quaternion 1e-3 off unit norm rotates and scales points.
+        let off = Pose::from_parts(
+            p.translation,
+            UnitQuaternion::new_unchecked(p.rotation.into_inner() * 1.001),
+        );
+        let x = Point3::new(0.5, -1.0, 2.0);
+        let d = (off * x - p * x).norm();
+        assert!(d > 1e-4, "{d}");
+        let r = renormalized(&off);
+        assert!((r.rotation.quaternion().norm() - 1.0).abs() < 1e-15);
+        assert!((r * x - p * x).norm() < 1e-12);
     }
 
     #[test]

@@ -527,7 +527,7 @@ pub fn solve_pnp_ransac(
         }
     };
     if let Some(p) = prior {
-        consider(*p, &mut best);
+        consider(crate::geometry::renormalized(p), &mut best);
     }
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let mut needed = cfg.max_iterations;
@@ -613,7 +613,7 @@ pub fn solve_pnp_ransac(
         .map(|(k, _)| squared_error(&pose, &points[k], &normalized[k], focal))
         .sum();
     Ok(PnpResult {
-        pose,
+        pose: crate::geometry::renormalized(&pose),
         inliers: mask,
         n_inliers,
         rms_px: (sq / n_inliers as f64).sqrt(),
@@ -811,6 +811,34 @@ mod tests {
             ..cfg
         };
         assert!(solve_pnp_ransac(&pts, &px, &cam, None, &bad).is_err());
+    }
+
+    #[test]
+    fn a_prior_with_a_non_unit_quaternion_gives_a_unit_result() {
+        // Tracking chains priors (constant velocity): a result that kept the
+        // prior's norm error would feed it back, growing each frame.
+        let Synthetic {
+            pts,
+            px,
+            truth,
+            cam,
+            ..
+        } = synthetic(9);
+        let off = Isometry3::from_parts(
+            truth.translation,
+            UnitQuaternion::new_unchecked(truth.rotation.into_inner() * (1.0 + 1e-6)),
+        );
+        for iterations in [0, 500] {
+            let cfg = PnpConfig {
+                max_iterations: iterations,
+                ..PnpConfig::default()
+            };
+            let res = solve_pnp_ransac(&pts, &px, &cam, Some(&off), &cfg).unwrap();
+            let norm = res.pose.rotation.quaternion().norm();
+            assert!((norm - 1.0).abs() < 1e-12, "{iterations}: {norm}");
+            let (r, t) = errors(&res.pose, &truth);
+            assert!(r < 0.1 && t < 0.01, "{r} {t}");
+        }
     }
 
     #[test]

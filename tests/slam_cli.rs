@@ -1,6 +1,13 @@
 //! The `slam` binary's argument handling: clear errors before any frame is
 //! processed, and a short real run writing every output.
 
+use burn::module::Module;
+use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnPredictor};
+use sdf_slam::slam::defaults::{
+    BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, default_sequence_config, generate_sequence,
+};
+use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -34,14 +41,28 @@ fn fixture() -> String {
 }
 
 #[test]
-fn missing_default_sequence_says_how_to_make_it() {
-    let dir = tmp_dir("default");
-    let (ok, _, err) = slam(&[], &dir);
+fn missing_sequence_and_monocular_without_sdfcnn_are_errors() {
+    let dir = tmp_dir("missing");
+    let (ok, _, err) = slam(&["--sequence", "no/such/sequence"], &dir);
     assert!(!ok);
     assert!(
-        err.contains("datasets/generated/default_sequence") && err.contains("generate"),
+        err.contains("no/such/sequence") && err.contains("does not exist"),
         "{err}"
     );
+    let fx = fixture();
+    let (ok, _, err) = slam(
+        &[
+            "--sequence",
+            &fx,
+            "--depth",
+            "predicted",
+            "--labels",
+            "none",
+        ],
+        &dir,
+    );
+    assert!(!ok);
+    assert!(err.contains("monocular") && err.contains("SDFCNN"), "{err}");
 }
 
 #[test]
@@ -78,6 +99,47 @@ fn bad_camera_file_and_checkpoint_fail_before_processing() {
         err.contains("FPFDCNN") && err.contains("model.bpk"),
         "{err}"
     );
+    // An SDFCNN checkpoint that is not SDFCNN weights: an error naming the
+    // file, before any output is written.
+    let sdf = dir.join("sdf");
+    std::fs::create_dir_all(&sdf).unwrap();
+    std::fs::write(sdf.join("model.bpk"), b"garbage").unwrap();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/sdfcnn_tiny.toml"),
+        sdf.join("config.toml"),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let (ok, _, err) = slam(
+        &[
+            "--sequence",
+            &fx,
+            "--features",
+            "orb",
+            "--sdfcnn",
+            sdf.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &dir,
+    );
+    assert!(!ok);
+    assert!(err.contains("SDFCNN") && err.contains("model.bpk"), "{err}");
+    assert!(!out.exists());
+    // FPFDCNN weights given as SDFCNN weights.
+    let (ok, _, err) = slam(
+        &[
+            "--sequence",
+            &fx,
+            "--features",
+            "orb",
+            "--sdfcnn",
+            ckpt.to_str().unwrap(),
+        ],
+        &dir,
+    );
+    assert!(!ok);
+    assert!(err.contains("not an SDFCNN checkpoint"), "{err}");
     let (ok, _, err) = slam(&["--sequence", &fx, "--labels", "gt"], &dir);
     assert!(!ok);
     assert!(err.contains("labels.txt"), "{err}");
@@ -102,6 +164,10 @@ fn short_run_writes_every_output() {
             &fx,
             "--max-frames",
             "4",
+            "--features",
+            "orb",
+            "--labels",
+            "none",
             "--out",
             out.to_str().unwrap(),
         ],
@@ -123,4 +189,170 @@ fn short_run_writes_every_output() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
+}
+
+/// A tiny synthetic sequence made by the function `slam` calls when the
+/// default sequence is absent, at `root/datasets/generated/default_sequence`.
+fn tiny_default_sequence(root: &Path, frames: usize) -> PathBuf {
+    let dest = root.join(DEFAULT_SEQUENCE);
+    let mut cfg = default_sequence_config();
+    cfg.frames = frames;
+    cfg.resolution = "160x120".into();
+    generate_sequence(&cfg, &dest, &|_| {}).unwrap();
+    dest
+}
+
+/// A randomly initialised tiny SDFCNN checkpoint in half precision, as bundled.
+fn tiny_sdfcnn(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let config = SdfcnnConfig::new()
+        .with_inner_size([32, 48])
+        .with_decoder_dim(16)
+        .with_crp_stages(1);
+    let device = BackendKind::Ndarray.device();
+    let model = sdf_slam::nn::seeded_init(config.init(&device).unwrap(), 3);
+    SdfcnnPredictor::from_model(model, config, device)
+        .save_f16(&dir.join("model.bpk"))
+        .unwrap();
+    std::fs::write(
+        dir.join("config.toml"),
+        "model = \"sdfcnn\"\n[network]\ninner_size = [32, 48]\ndecoder_dim = 16\ncrp_stages = 1\n",
+    )
+    .unwrap();
+}
+
+/// A randomly initialised FPFDCNN checkpoint (Table 12) with the smoke-run config.
+fn random_fpfdcnn(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let device = BackendKind::Ndarray.device();
+    let model = sdf_slam::nn::seeded_init(FpfdcnnConfig::new().init(&device).unwrap(), 4);
+    model.save_file(dir.join("model.bpk")).unwrap();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fpfdcnn_tiny.toml"),
+        dir.join("config.toml"),
+    )
+    .unwrap();
+}
+
+fn bundled(rel: &str) -> bool {
+    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    d.join("model.bpk").is_file() && d.join("config.toml").is_file()
+}
+
+#[test]
+fn no_arguments_run_the_default_sequence_with_the_bundled_weights() {
+    // The default sequence already exists here (generating the full-size one
+    // is for real runs); the weights are the bundled ones when the crate has
+    // them, else ORB keypoints and no labels, each with a note saying why.
+    let dir = tmp_dir("noargs");
+    tiny_default_sequence(&dir, 6);
+    let (ok, stdout, err) = slam(&[], &dir);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains(DEFAULT_SEQUENCE) && err.contains("RGB-D"),
+        "{err}"
+    );
+    if bundled(BUNDLED_FPFDCNN) {
+        assert!(
+            err.contains("fpfdcnn keypoints (") && err.contains(BUNDLED_FPFDCNN),
+            "{err}"
+        );
+    } else {
+        assert!(
+            err.contains("note: using ORB keypoints") && err.contains("orb keypoints"),
+            "{err}"
+        );
+    }
+    if bundled(BUNDLED_SDFCNN) {
+        assert!(
+            err.contains("sdfcnn labels (") && err.contains(BUNDLED_SDFCNN),
+            "{err}"
+        );
+    } else {
+        assert!(
+            err.contains("note: no semantic labels") && err.contains("none labels"),
+            "{err}"
+        );
+    }
+    for what in [
+        "frames 6 / 6",
+        "keyframes",
+        "frames/s",
+        "ATE",
+        "labels:",
+        "wrote:",
+    ] {
+        assert!(stdout.contains(what), "{what}: {stdout}");
+    }
+    let out = dir.join("runs/slam/default_sequence");
+    for f in ["trajectory.txt", "map.ply", "report.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+}
+
+#[test]
+fn sdfcnn_checkpoint_gives_labels_and_monocular_depth() {
+    let dir = tmp_dir("sdfcnn");
+    let seq = tiny_default_sequence(&dir, 6);
+    let ckpt = dir.join("sdfcnn");
+    tiny_sdfcnn(&ckpt);
+    let out = dir.join("out");
+    let (ok, stdout, err) = slam(
+        &[
+            "--sequence",
+            seq.to_str().unwrap(),
+            "--depth",
+            "predicted",
+            "--features",
+            "orb",
+            "--sdfcnn",
+            ckpt.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &dir,
+    );
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("monocular mode") && err.contains("sdfcnn labels ("),
+        "{err}"
+    );
+    assert!(stdout.contains("frames 6 / 6"), "{stdout}");
+    let traj = sdf_slam::trajectory::Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
+    assert_eq!(traj.len(), 6);
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["labels"], "sdfcnn");
+    assert_eq!(json["mode"], "monocular");
+}
+
+#[test]
+fn weights_in_the_current_directory_are_the_defaults() {
+    // weights/{fpfdcnn,sdfcnn} under the current directory come first.
+    let dir = tmp_dir("cwd_weights");
+    tiny_default_sequence(&dir, 4);
+    random_fpfdcnn(&dir.join(BUNDLED_FPFDCNN));
+    tiny_sdfcnn(&dir.join(BUNDLED_SDFCNN));
+    let (ok, stdout, err) = slam(&["--single-thread"], &dir);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains(&format!("fpfdcnn keypoints ({BUNDLED_FPFDCNN})"))
+            && err.contains(&format!("sdfcnn labels ({BUNDLED_SDFCNN})")),
+        "{err}"
+    );
+    assert!(!err.contains("note:"), "{err}");
+    assert!(stdout.contains("frames 4 / 4"), "{stdout}");
+    let json: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.join("runs/slam/default_sequence/report.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(json["features"], "fpfdcnn");
+    assert_eq!(json["labels"], "sdfcnn");
+    // --labels gt is used only when asked for.
+    let (ok, _, err) = slam(
+        &["--single-thread", "--labels", "gt", "--max-frames", "2"],
+        &dir,
+    );
+    assert!(ok, "{err}");
+    assert!(err.contains("gt labels"), "{err}");
 }

@@ -1,6 +1,10 @@
 //! `slam`: runs SDF-SLAM on a TUM RGB-D layout sequence and writes the
 //! trajectory, the semantic map (PLY + picture) and a report.
 //!
+//! With no arguments: the synthetic default sequence (generated on first use),
+//! RGB-D mode, FPFDCNN keypoints and SDFCNN labels from the bundled weights
+//! (see [`sdf_slam::slam::defaults`]).
+//!
 //! ```text
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
 //!      [--features fpfdcnn|orb] [--fpfdcnn CKPT] [--labels gt|sdfcnn|none] [--sdfcnn CKPT]
@@ -14,32 +18,34 @@ use indicatif::{ProgressBar, ProgressStyle};
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
+use sdf_slam::slam::defaults::{
+    BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, bundled_weights, default_sequence,
+    default_sequence_config, generate_sequence,
+};
 use sdf_slam::slam::report::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
 use sdf_slam::slam::tracking::FrameRecord;
 use sdf_slam::slam::{
     Control, DepthMode, FpfdcnnSource, GroundTruthSource, KeypointSource, NoLabels, OrbSource,
-    SemanticSource, Slam, SlamConfig,
+    SdfcnnSource, SemanticSource, Slam, SlamConfig,
 };
 use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// The sequence run when none is given.
-const DEFAULT_SEQUENCE: &str = "datasets/generated/default_sequence";
+use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum DepthArg {
     /// RGB-D: the sequence's depth images.
     Sensor,
-    /// Monocular: depth from the semantic source (SDFCNN).
+    /// Monocular: metric depth predicted by SDFCNN (--labels sdfcnn).
     Predicted,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum FeaturesArg {
-    /// The paper's FPFDCNN (needs --fpfdcnn).
+    /// The paper's FPFDCNN (--fpfdcnn CKPT, or the bundled weights/fpfdcnn).
     Fpfdcnn,
     /// ORB baseline (cv::ORB_create(500)).
     Orb,
@@ -49,7 +55,7 @@ enum FeaturesArg {
 enum LabelsArg {
     /// Ground-truth labels of a synthetic sequence (labels.txt + labels/).
     Gt,
-    /// SDFCNN predictions (needs --sdfcnn).
+    /// SDFCNN predictions (--sdfcnn CKPT, or the bundled weights/sdfcnn).
     Sdfcnn,
     /// No semantics: the map is coloured by RGB only.
     None,
@@ -59,32 +65,43 @@ enum LabelsArg {
 #[command(
     name = "slam",
     version,
-    about = "SDF-SLAM: semantic RGB-D / monocular SLAM on a TUM RGB-D layout sequence"
+    about = "SDF-SLAM: semantic RGB-D / monocular SLAM on a TUM RGB-D layout sequence",
+    long_about = "SDF-SLAM: semantic RGB-D / monocular SLAM on a TUM RGB-D layout sequence.\n\n\
+        With no arguments it runs the bundled default: the synthetic sequence \
+        datasets/generated/default_sequence (generated on first use), RGB-D mode, FPFDCNN \
+        keypoints and SDFCNN labels from the bundled weights/fpfdcnn and weights/sdfcnn. \
+        Crate-relative defaults are looked up in the current directory, then in the crate's \
+        source folder."
 )]
 struct Cli {
-    /// Sequence folder in the TUM RGB-D layout.
-    #[arg(long, default_value = DEFAULT_SEQUENCE)]
-    sequence: PathBuf,
+    /// Sequence folder in the TUM RGB-D layout [default: datasets/generated/default_sequence,
+    /// generated when absent].
+    #[arg(long)]
+    sequence: Option<PathBuf>,
     /// Camera: fr1, fr2, fr3 or a camera TOML file [default: the sequence's
     /// camera.toml if it has one, else fr1].
     #[arg(long)]
     camera: Option<String>,
-    /// Depth source: sensor (RGB-D) or predicted (monocular).
+    /// Depth source: sensor (RGB-D) or predicted (monocular, SDFCNN depth).
     #[arg(long, value_enum, default_value_t = DepthArg::Sensor)]
     depth: DepthArg,
-    /// Keypoints [default: fpfdcnn when --fpfdcnn is given, else orb].
+    /// Keypoints [default: fpfdcnn when --fpfdcnn is given or weights/fpfdcnn exists, else orb].
     #[arg(long, value_enum)]
     features: Option<FeaturesArg>,
-    /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder).
+    /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder)
+    /// [default: weights/fpfdcnn when it exists].
     #[arg(long)]
     fpfdcnn: Option<PathBuf>,
-    /// SDFCNN checkpoint.
+    /// SDFCNN checkpoint (model.bpk, its folder, or a training run folder)
+    /// [default: weights/sdfcnn when it exists].
     #[arg(long)]
     sdfcnn: Option<PathBuf>,
-    /// Semantic labels [default: gt when the sequence has labels.txt, else none].
+    /// Semantic labels [default: sdfcnn when --sdfcnn is given or weights/sdfcnn exists,
+    /// else none].
     #[arg(long, value_enum)]
     labels: Option<LabelsArg>,
-    /// SLAM configuration (TOML, see configs/slam.toml).
+    /// SLAM configuration (TOML, see configs/slam.toml; configs/slam_orb_baseline.toml is
+    /// the frame-to-frame ORB + PnP baseline).
     #[arg(long)]
     config: Option<PathBuf>,
     /// Output folder [default: runs/slam/<sequence name>].
@@ -101,18 +118,56 @@ struct Cli {
     max_frames: Option<usize>,
 }
 
+/// A checkpoint given on the command line, else the bundled one (if present).
+fn checkpoint(given: &Option<PathBuf>, bundled: &str) -> Option<PathBuf> {
+    given.clone().or_else(|| bundled_weights(bundled))
+}
+
+/// ` (PATH)` of the checkpoint a network was loaded from.
+fn weights_note(used: bool, ckpt: &Option<PathBuf>) -> String {
+    match ckpt {
+        Some(p) if used => format!(" ({})", p.display()),
+        _ => String::new(),
+    }
+}
+
+/// Generates the default sequence into `dest`, with a progress bar.
+fn generate_default_sequence(dest: &Path) -> Result<()> {
+    let cfg = default_sequence_config();
+    let camera = cfg.camera()?;
+    eprintln!(
+        "the default sequence {} does not exist yet, generating it (later runs reuse it): one \
+         synthetic room (seed {}), {} frames of a {} trajectory at {}x{} with the TUM fr1 \
+         camera, sensor and exact depth, NYU40 labels and ground-truth poses; about 1 MB per \
+         frame and a minute on two cores",
+        dest.display(),
+        cfg.seed,
+        cfg.frames,
+        format!("{:?}", cfg.trajectory).to_lowercase(),
+        camera.width,
+        camera.height
+    );
+    let bar = ProgressBar::new(cfg.frames as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} frames generated")
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .progress_chars("=> "),
+    );
+    let started = Instant::now();
+    let summary = generate_sequence(&cfg, dest, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    let summary = summary.with_context(|| format!("generating {}", dest.display()))?;
+    eprintln!(
+        "wrote {} frames to {} in {:.1} s",
+        summary.frames,
+        dest.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    if !cli.sequence.is_dir() {
-        if cli.sequence == Path::new(DEFAULT_SEQUENCE) {
-            bail!(
-                "the default sequence {DEFAULT_SEQUENCE} does not exist yet: generate a synthetic \
-                 sequence with the synthetic generator into that folder, or run on your own data \
-                 with --sequence DIR (a TUM RGB-D layout folder, e.g. rgbd_dataset_freiburg1_desk2)"
-            );
-        }
-        bail!("sequence folder {} does not exist", cli.sequence.display());
-    }
     let mut config = match &cli.config {
         Some(p) => SlamConfig::load(p)?,
         None => SlamConfig::default(),
@@ -120,50 +175,105 @@ fn main() -> Result<()> {
     if cli.single_thread {
         config.system.threads = false;
     }
-    let sequence = TumSequence::open(&cli.sequence)?;
-    let camera = match &cli.camera {
-        Some(spec) => Camera::load(spec)?,
-        None if cli.sequence.join("camera.toml").is_file() => {
-            Camera::from_file(cli.sequence.join("camera.toml"))?
+    // The networks first: weights that do not fit fail before anything else happens.
+    let fpfdcnn_ckpt = checkpoint(&cli.fpfdcnn, BUNDLED_FPFDCNN);
+    let features = match cli.features {
+        Some(f) => f,
+        None if fpfdcnn_ckpt.is_some() => FeaturesArg::Fpfdcnn,
+        None => {
+            eprintln!(
+                "note: using ORB keypoints: no --fpfdcnn checkpoint and no bundled FPFDCNN \
+                 weights ({BUNDLED_FPFDCNN}/model.bpk + config.toml, looked for in the current \
+                 directory and in {})",
+                env!("CARGO_MANIFEST_DIR")
+            );
+            FeaturesArg::Orb
         }
-        None => Camera::tum_fr1(),
     };
-    let features = cli.features.unwrap_or(if cli.fpfdcnn.is_some() {
-        FeaturesArg::Fpfdcnn
-    } else {
-        FeaturesArg::Orb
-    });
     let keypoints: Box<dyn KeypointSource> = match features {
         FeaturesArg::Orb => Box::new(OrbSource::from_config(&config.features)),
         FeaturesArg::Fpfdcnn => {
-            let Some(ckpt) = &cli.fpfdcnn else {
-                bail!("--features fpfdcnn needs a checkpoint: --fpfdcnn CKPT");
+            let Some(ckpt) = &fpfdcnn_ckpt else {
+                bail!(
+                    "--features fpfdcnn needs a checkpoint: --fpfdcnn CKPT (no bundled weights \
+                     found at {BUNDLED_FPFDCNN})"
+                );
             };
             let detector = FpfdcnnDetector::load(ckpt, cli.backend, config.features.detector())
                 .with_context(|| format!("loading FPFDCNN from {}", ckpt.display()))?;
             Box::new(FpfdcnnSource { detector })
         }
     };
-    let has_labels = cli.sequence.join("labels.txt").is_file();
-    let labels = cli.labels.unwrap_or(if has_labels {
-        LabelsArg::Gt
-    } else {
-        LabelsArg::None
-    });
-    let semantics: Box<dyn SemanticSource> = match labels {
-        LabelsArg::None => Box::new(NoLabels),
-        LabelsArg::Gt => Box::new(GroundTruthSource::open(
-            &cli.sequence,
+    let sdfcnn_ckpt = checkpoint(&cli.sdfcnn, BUNDLED_SDFCNN);
+    let labels = match cli.labels {
+        Some(l) => l,
+        None if sdfcnn_ckpt.is_some() => LabelsArg::Sdfcnn,
+        None => {
+            eprintln!(
+                "note: no semantic labels: no --sdfcnn checkpoint and no bundled SDFCNN weights \
+                 ({BUNDLED_SDFCNN}/model.bpk + config.toml, looked for in the current directory \
+                 and in {}); --labels gt uses a synthetic sequence's ground-truth labels",
+                env!("CARGO_MANIFEST_DIR")
+            );
+            LabelsArg::None
+        }
+    };
+    let sdfcnn = match labels {
+        LabelsArg::Sdfcnn => {
+            let Some(ckpt) = &sdfcnn_ckpt else {
+                bail!(
+                    "--labels sdfcnn needs a checkpoint: --sdfcnn CKPT (no bundled weights found \
+                     at {BUNDLED_SDFCNN})"
+                );
+            };
+            Some(
+                SdfcnnSource::load(ckpt, cli.backend)
+                    .with_context(|| format!("loading SDFCNN from {}", ckpt.display()))?,
+            )
+        }
+        _ => None,
+    };
+    if cli.depth == DepthArg::Predicted && labels == LabelsArg::None {
+        bail!(
+            "monocular mode (--depth predicted) takes its depth from SDFCNN: use --labels sdfcnn \
+             with --sdfcnn CKPT{} (or --labels gt on a synthetic sequence with depth_gt/)",
+            if sdfcnn_ckpt.is_some() {
+                ""
+            } else {
+                " (no bundled weights found at weights/sdfcnn)"
+            }
+        );
+    }
+    let sequence_path = match &cli.sequence {
+        Some(p) if p != Path::new(DEFAULT_SEQUENCE) => {
+            if !p.is_dir() {
+                bail!("sequence folder {} does not exist", p.display());
+            }
+            p.clone()
+        }
+        _ => match default_sequence() {
+            Ok(p) => p,
+            Err(dest) => {
+                generate_default_sequence(&dest)?;
+                dest
+            }
+        },
+    };
+    let sequence = TumSequence::open(&sequence_path)?;
+    let camera = match &cli.camera {
+        Some(spec) => Camera::load(spec)?,
+        None if sequence_path.join("camera.toml").is_file() => {
+            Camera::from_file(sequence_path.join("camera.toml"))?
+        }
+        None => Camera::tum_fr1(),
+    };
+    let semantics: Box<dyn SemanticSource> = match (labels, sdfcnn) {
+        (LabelsArg::Sdfcnn, Some(s)) => Box::new(s),
+        (LabelsArg::Gt, _) => Box::new(GroundTruthSource::open(
+            &sequence_path,
             sequence.config.depth_scale,
         )?),
-        LabelsArg::Sdfcnn => bail!(
-            "--labels sdfcnn: SDFCNN inference is not part of this build yet{}; use --labels gt \
-             (synthetic sequences) or --labels none",
-            cli.sdfcnn
-                .as_ref()
-                .map(|p| format!(" (checkpoint {} not loaded)", p.display()))
-                .unwrap_or_default()
-        ),
+        _ => Box::new(NoLabels),
     };
     let depth = match cli.depth {
         DepthArg::Sensor => DepthMode::Sensor,
@@ -187,7 +297,7 @@ fn main() -> Result<()> {
     };
     slam.validate()?;
     eprintln!(
-        "sequence {} ({n} frames), camera {}, {} mode, {} keypoints, {} labels, {}",
+        "sequence {} ({n} frames), camera {}, {} mode, {} keypoints{}, {} labels{}, {}",
         sequence.root.display(),
         if camera.name.is_empty() {
             "from file"
@@ -199,7 +309,9 @@ fn main() -> Result<()> {
             DepthMode::Predicted => "monocular",
         },
         slam.keypoints.name(),
+        weights_note(features == FeaturesArg::Fpfdcnn, &fpfdcnn_ckpt),
         slam.semantics.name(),
+        weights_note(labels == LabelsArg::Sdfcnn, &sdfcnn_ckpt),
         if config.system.threads {
             "3 threads"
         } else {

@@ -98,13 +98,19 @@ impl Corrector {
         let (prev_pose, prev_track) = &others[k - 1];
         let relative = prev_pose.inverse() * odom;
         self.stats.odometry_edges += 1;
-        let verified = verify_pair(
-            &self.camera,
-            &self.cfg,
-            prev_track,
-            &current,
-            Some(&relative),
-        );
+        // Its matches only serve local correction and the pose graph: with
+        // both off (the frame-to-frame baseline) nothing is verified.
+        let verified = if c.enabled || c.local {
+            verify_pair(
+                &self.camera,
+                &self.cfg,
+                prev_track,
+                &current,
+                Some(&relative),
+            )
+        } else {
+            None
+        };
         if verified.is_some() {
             self.stats.odometry_verified += 1;
         }

@@ -11,11 +11,13 @@
 //!   pose graph ([`pose_graph`]), plus local unification of matched points;
 //! * [`system`] — the three stages as threads passing messages, or in order on
 //!   one thread; [`report`] — trajectories, PLY map, pictures, ATE/RPE and
-//!   Table 11 accuracy; [`config`] — every tunable.
+//!   Table 11 accuracy; [`config`] — every tunable; [`defaults`] — bundled
+//!   weights and the generated default sequence.
 
 pub mod classes;
 pub mod config;
 pub mod correction;
+pub mod defaults;
 pub mod keypoints;
 pub mod map;
 pub mod pose_graph;
@@ -27,5 +29,7 @@ pub mod tracking;
 
 pub use config::SlamConfig;
 pub use keypoints::{FpfdcnnSource, KeyFeatures, KeypointSource, OrbSource};
-pub use semantic_source::{GroundTruthSource, NoLabels, SemanticInput, SemanticSource};
+pub use semantic_source::{
+    GroundTruthSource, NoLabels, SdfcnnSource, SemanticInput, SemanticSource,
+};
 pub use system::{Control, DepthMode, Slam, SlamOutput};

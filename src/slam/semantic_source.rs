@@ -1,13 +1,22 @@
 //! Where a keyframe's semantic labels (and, in monocular mode, its depth) come
-//! from (section IV-C step 1). SDFCNN predicts both from the RGB image; until
-//! its inference lands, the sources are the ground-truth labels of a synthetic
-//! sequence and "none". An SDFCNN source only has to implement
-//! [`SemanticSource`] with `predict` returning `(labels, Some(depth))` of
-//! `input.rgb`.
+//! from (section IV-C step 1): SDFCNN, which predicts both from the RGB image
+//! in one forward pass ([`SdfcnnSource`]); the ground-truth labels (and exact
+//! depth) of a synthetic sequence ([`GroundTruthSource`], a "perfect SDFCNN"
+//! for tests); or none ([`NoLabels`]).
+//!
+//! The mapping stage calls [`SemanticSource::predict`] once per keyframe and
+//! uses the result twice: the labels (and predicted depth) are fused into the
+//! map, and in monocular mode the predicted depth gives the keyframe's 3D
+//! keypoints, which tracking uses as the reference for PnP (eqs 9-10). Only
+//! keyframes are ever references (the previous frame's 3D points are the PnP
+//! inliers' map points), so SDFCNN runs exactly once per keyframe and on no
+//! other frame.
 
 use crate::dataset::{DepthImage, LabelImage};
 use crate::error::{Error, Result};
 use crate::io::{parse_f64, read_text, records};
+use crate::sdfcnn::SdfcnnPredictor;
+use crate::training::BackendKind;
 use image::RgbImage;
 use std::path::{Path, PathBuf};
 
@@ -46,6 +55,62 @@ impl SemanticSource for NoLabels {
     fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
         let (w, h) = input.rgb.dimensions();
         Ok((LabelImage::new(w, h, crate::dataset::labels::VOID), None))
+    }
+}
+
+/// SDFCNN (Table 13): NYU40 labels and metric depth of the keyframe's RGB
+/// image, both at the image's resolution, from one forward pass.
+#[derive(Debug)]
+pub struct SdfcnnSource {
+    pub predictor: SdfcnnPredictor,
+}
+
+/// Classes of the semantic map (NYU40).
+const MAP_CLASSES: usize = 40;
+
+impl SdfcnnSource {
+    /// Loads a checkpoint (`model.bpk` in f32 or f16, its folder, or a
+    /// training run folder) on `backend`. Weights that do not fit the network
+    /// described by the `config.toml` beside them, a checkpoint of another
+    /// network, or a network whose classes are not the map's NYU40 are errors.
+    pub fn load(path: &Path, backend: BackendKind) -> Result<Self> {
+        let predictor = SdfcnnPredictor::load(path, backend)?;
+        Self::new(predictor)
+    }
+
+    /// Wraps a loaded predictor (an error unless it predicts NYU40 classes).
+    pub fn new(predictor: SdfcnnPredictor) -> Result<Self> {
+        let classes = predictor.config.num_classes;
+        if classes != MAP_CLASSES {
+            return Err(Error::invalid(
+                &predictor.checkpoint,
+                format!(
+                    "this SDFCNN predicts {classes} classes; the semantic map uses the \
+                     {MAP_CLASSES} NYUv2 classes"
+                ),
+            ));
+        }
+        Ok(SdfcnnSource { predictor })
+    }
+}
+
+impl SemanticSource for SdfcnnSource {
+    fn name(&self) -> &'static str {
+        "sdfcnn"
+    }
+
+    fn provides_depth(&self) -> bool {
+        true
+    }
+
+    fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
+        let p = self.predictor.predict(input.rgb).map_err(|e| {
+            Error::msg(format!(
+                "frame {}: SDFCNN inference failed: {e}",
+                input.index
+            ))
+        })?;
+        Ok((p.labels, Some(p.depth)))
     }
 }
 

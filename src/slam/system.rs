@@ -19,7 +19,7 @@ use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::orb::rgb_to_gray;
-use crate::geometry::Pose;
+use crate::geometry::{Pose, renormalized};
 use crate::trajectory::Trajectory;
 use image::RgbImage;
 use nalgebra::Point3;
@@ -312,7 +312,7 @@ impl LocalMapper {
             let mut m = write(&self.map);
             // Follow the corrections made so far.
             let pose = match m.keyframes.last() {
-                Some(last) => last.pose * last.odom_pose.inverse() * kf.pose,
+                Some(last) => renormalized(&(last.pose * last.odom_pose.inverse() * kf.pose)),
                 None => kf.pose,
             };
             m.keyframes.push(KeyFrame {

@@ -20,7 +20,7 @@ use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
 use crate::camera::Camera;
 use crate::dataset::DepthImage;
-use crate::geometry::Pose;
+use crate::geometry::{Pose, renormalized};
 use crate::pnp::{PnpResult, solve_pnp_ransac};
 use crate::range_matcher::{RangeMatcherConfig, range_match};
 use nalgebra::{Point2, Point3};
@@ -229,7 +229,7 @@ impl Tracker {
         let gap = input.index.saturating_sub(last_index).max(1);
         let mut predicted = last_pose;
         for _ in 0..gap {
-            predicted *= self.velocity;
+            predicted = renormalized(&(predicted * self.velocity));
         }
         let mut status = FrameStatus::Tracked;
         let mut reference_now = reference;
@@ -287,7 +287,7 @@ impl Tracker {
             .map(|p| p.map(|p| pose * p))
             .collect()
         };
-        self.velocity = last_pose.inverse() * pose;
+        self.velocity = renormalized(&(last_pose.inverse() * pose));
         let kf_pose = self.keyframes[reference_now].pose;
         let since = kf_pose.inverse() * pose;
         let rules = &self.cfg.keyframes;
@@ -389,7 +389,7 @@ impl Tracker {
         self.reference = Some(id);
         self.lost_streak = 0;
         if let Some(last) = &self.last {
-            self.velocity = last.pose.inverse() * pose;
+            self.velocity = renormalized(&(last.pose.inverse() * pose));
         }
         if status == FrameStatus::Lost {
             self.counters.reinitialised.push(input.index);

@@ -158,7 +158,8 @@ fn export(args: &ExportArgs) -> Result<()> {
             save_f16(det.model, &target)?;
         }
         "sdfcnn" => {
-            let p = sdf_slam::sdfcnn::inference::SdfcnnPredictor::load(&weights, BackendKind::Flex)?;
+            let p =
+                sdf_slam::sdfcnn::inference::SdfcnnPredictor::load(&weights, BackendKind::Flex)?;
             let tmp = sdf_slam::io::temp_path(&target);
             p.save_f16(&tmp)?;
             std::fs::rename(&tmp, &target)
@@ -166,7 +167,7 @@ fn export(args: &ExportArgs) -> Result<()> {
         }
         other => anyhow::bail!("{}: no network called \"{other}\"", config.display()),
     }
-    sdf_slam::io::write_atomic(&args.out.join("config.toml"), text.as_bytes())?;
+    sdf_slam::io::write_atomic(args.out.join("config.toml"), text.as_bytes())?;
     let size = std::fs::metadata(&target)?.len();
     println!(
         "{} -> {} ({:.1} MB, half precision) and config.toml",

@@ -133,7 +133,7 @@ fn train(args: RunArgs) -> Result<()> {
         "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
         "sweep" => sweep::run(&config, &text, &opts)?,
         other => anyhow::bail!(
-            "{}: no trainer for model = \"{other}\" (expected \"fpfdcnn\" or \"sdfcnn\")",
+            "{}: no trainer for model = \"{other}\" (expected \"fpfdcnn\", \"sdfcnn\" or \"sweep\")",
             config.display()
         ),
     }

@@ -371,28 +371,7 @@ pub fn dining_table(b: &mut Builder) -> Group {
     let (w, d, h) = (b.r(1.1, 1.8), b.r(0.75, 1.0), b.r(0.72, 0.77));
     let wood = b.wood();
     let s = b.seed();
-    g.bx(
-        &L,
-        [0.0, 0.0, h - 0.02],
-        [w, d, 0.04],
-        label::TABLE,
-        wood,
-        s,
-    );
-    for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
-        g.bx(
-            &L,
-            [
-                sx * (w * 0.5 - 0.06),
-                sy * (d * 0.5 - 0.06),
-                (h - 0.04) * 0.5,
-            ],
-            [0.06, 0.06, h - 0.04],
-            label::TABLE,
-            wood,
-            s,
-        );
-    }
+    top_on_legs(&mut g, &L, [w, d, h], 0.06, label::TABLE, wood, s);
     let per_side = if w > 1.4 { 2 } else { 1 };
     for side in [-1.0f32, 1.0] {
         for k in 0..per_side {
@@ -426,28 +405,7 @@ pub fn coffee_table(b: &mut Builder) -> Group {
     let (w, d, h) = (b.r(0.8, 1.2), b.r(0.45, 0.65), b.r(0.38, 0.46));
     let wood = b.wood();
     let s = b.seed();
-    g.bx(
-        &L,
-        [0.0, 0.0, h - 0.02],
-        [w, d, 0.04],
-        label::TABLE,
-        wood,
-        s,
-    );
-    for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
-        g.bx(
-            &L,
-            [
-                sx * (w * 0.5 - 0.04),
-                sy * (d * 0.5 - 0.04),
-                (h - 0.04) * 0.5,
-            ],
-            [0.04, 0.04, h - 0.04],
-            label::TABLE,
-            wood,
-            s,
-        );
-    }
+    top_on_legs(&mut g, &L, [w, d, h], 0.04, label::TABLE, wood, s);
     let n = b.rng.random_range(1..4);
     props(b, &mut g, -w * 0.5, w * 0.5, -d * 0.5, d * 0.5, h, n);
     g.focus.push(V3::new(0.0, 0.0, h));

@@ -417,3 +417,28 @@ pub(super) fn chair(b: &mut Builder, g: &mut Group, p: &Place) {
         }
     }
 }
+
+/// A `w x d` top 4 cm thick whose upper face is at height `h`, on four square legs of side
+/// `leg` inset by `leg` from the corners; one label and one material for all five boxes.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn top_on_legs(
+    g: &mut Group,
+    p: &Place,
+    [w, d, h]: [f32; 3],
+    leg: f32,
+    label: u8,
+    material: Material,
+    seed: u32,
+) {
+    g.bx(p, [0.0, 0.0, h - 0.02], [w, d, 0.04], label, material, seed);
+    for (sx, sy) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+        g.bx(
+            p,
+            [sx * (w * 0.5 - leg), sy * (d * 0.5 - leg), (h - 0.04) * 0.5],
+            [leg, leg, h - 0.04],
+            label,
+            material,
+            seed,
+        );
+    }
+}

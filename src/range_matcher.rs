@@ -189,19 +189,6 @@ fn check_inputs(name: &str, points: &[[f32; 2]], desc: &[f32], dim: usize) -> Re
     Ok(())
 }
 
-/// Matches keypoints `points1` (descriptors `desc1`, `dim` values per keypoint) to
-/// `points2` (`desc2`) with the range matcher. Returns pairs in order of `i`.
-pub fn range_match(
-    points1: &[[f32; 2]],
-    desc1: &[f32],
-    points2: &[[f32; 2]],
-    desc2: &[f32],
-    dim: usize,
-    cfg: &RangeMatcherConfig,
-) -> Result<Vec<RangeMatch>> {
-    range_match_centred(points1, None, desc1, points2, desc2, dim, cfg)
-}
-
 /// An affine image-motion estimate `p₂ ≈ A·p₁ + t` (row-major `[a, b, tx, c, d, ty]`).
 pub type Affine = [f64; 6];
 
@@ -294,14 +281,17 @@ pub fn estimate_affine(
     if best.len() < cfg.min_inliers {
         return None;
     }
-    // Refit on the inliers, then once more on the refitted model's inliers.
-    let mut a = fit_affine(&best.iter().map(|&k| pairs[k]).collect::<Vec<_>>())?;
-    let inl = inliers_of(&a);
-    if inl.len() >= cfg.min_inliers {
-        a = fit_affine(&inl.iter().map(|&k| pairs[k]).collect::<Vec<_>>())?;
+    // Least squares on the inliers, twice (the refit may gain or lose a few).
+    let mut inliers = best;
+    let mut a = [0.0; 6];
+    for _ in 0..2 {
+        if inliers.len() < cfg.min_inliers {
+            return None;
+        }
+        a = fit_affine(&inliers.iter().map(|&k| pairs[k]).collect::<Vec<_>>())?;
+        inliers = inliers_of(&a);
     }
-    let n = inliers_of(&a).len();
-    (n >= cfg.min_inliers).then_some((a, n))
+    (inliers.len() >= cfg.min_inliers).then_some((a, inliers.len()))
 }
 
 /// The range matcher with each window centred at the keypoint's position moved by the
@@ -328,17 +318,22 @@ pub fn guided_range_match(
         .map(|m| (points1[m.i], points2[m.j]))
         .collect();
     let affine = estimate_affine(&pairs, guide).map(|(a, _)| a);
-    let centres: Option<Vec<[f32; 2]>> =
-        affine.map(|a| points1.iter().map(|&p| apply_affine(&a, p)).collect());
-    let m = range_match_centred(points1, centres.as_deref(), desc1, points2, desc2, dim, cfg)?;
+    let m = match affine {
+        Some(a) => {
+            let centres: Vec<[f32; 2]> = points1.iter().map(|&p| apply_affine(&a, p)).collect();
+            range_match(&centres, desc1, points2, desc2, dim, cfg)?
+        }
+        None => range_match(points1, desc1, points2, desc2, dim, cfg)?,
+    };
     Ok((m, affine))
 }
 
-/// The range matcher with image-1 windows centred at `centres` (default: `points1`).
-/// The mutual check searches image 1 around the image-2 keypoint among the centres.
-pub fn range_match_centred(
+/// Matches keypoints `points1` (descriptors `desc1`, `dim` values per keypoint) to
+/// `points2` (`desc2`) with the range matcher. Returns pairs in order of `i`.
+/// `points1` are the window centres: the keypoints' own positions (the paper) or where
+/// they are expected in image 2 (a motion estimate or prediction).
+pub fn range_match(
     points1: &[[f32; 2]],
-    centres: Option<&[[f32; 2]]>,
     desc1: &[f32],
     points2: &[[f32; 2]],
     desc2: &[f32],
@@ -365,35 +360,18 @@ pub fn range_match_centred(
     }
     check_inputs("1", points1, desc1, dim)?;
     check_inputs("2", points2, desc2, dim)?;
-    let centres = centres.unwrap_or(points1);
-    if centres.len() != points1.len()
-        || centres
-            .iter()
-            .any(|c| !(c[0].is_finite() && c[1].is_finite()))
-    {
-        return Err(Error::msg(format!(
-            "range matcher: {} window centres for {} keypoints, or a non-finite centre",
-            centres.len(),
-            points1.len()
-        )));
-    }
     if points1.is_empty() || points2.is_empty() {
         return Ok(Vec::new());
     }
-    // An unbounded window (global matching) uses a single grid cell.
-    let half = if cfg.window.is_finite() {
-        cfg.window / 2.0
-    } else {
-        f32::MAX
-    };
-    let cell = if cfg.window.is_finite() { half } else { 1e9 };
-    let grid2 = Grid::new(points2, cell);
-    let grid1 = cfg.mutual.then(|| Grid::new(centres, cell));
+    // An unbounded window (global matching) gives a single grid cell.
+    let half = (cfg.window / 2.0).min(f32::MAX);
+    let grid2 = Grid::new(points2, half);
+    let grid1 = cfg.mutual.then(|| Grid::new(points1, half));
     let matches = (0..points1.len())
         .into_par_iter()
         .filter_map(|i| {
             let q = &desc1[i * dim..(i + 1) * dim];
-            let (j, d, second) = nearest(q, centres[i], half, &grid2, points2, desc2, dim)?;
+            let (j, d, second) = nearest(q, points1[i], half, &grid2, points2, desc2, dim)?;
             if let Some(r) = cfg.ratio
                 && d.sqrt() >= r * second.sqrt()
             {
@@ -401,7 +379,7 @@ pub fn range_match_centred(
             }
             if let Some(g1) = &grid1 {
                 let back = &desc2[j * dim..(j + 1) * dim];
-                let (i_back, _, _) = nearest(back, points2[j], half, g1, centres, desc1, dim)?;
+                let (i_back, _, _) = nearest(back, points2[j], half, g1, points1, desc1, dim)?;
                 if i_back != i {
                     return None;
                 }

@@ -197,7 +197,14 @@ struct PairGt<'a> {
     pnp: &'a PnpConfig,
 }
 
-fn score(acc: &mut Acc, matches: &PixelMatches, keypoints: usize, gt: &PairGt<'_>) -> Result<()> {
+/// Scores one method's matches on one pair into `acc`; returns each match's error against
+/// the ground-truth projection (`None`: no depth at the frame-A keypoint).
+fn score(
+    acc: &mut Acc,
+    matches: &PixelMatches,
+    keypoints: usize,
+    gt: &PairGt<'_>,
+) -> Result<Vec<Option<f64>>> {
     let PairGt {
         a,
         pose_a,
@@ -242,7 +249,7 @@ fn score(acc: &mut Acc, matches: &PixelMatches, keypoints: usize, gt: &PairGt<'_
         }
         Err(_) => acc.failures += 1,
     }
-    Ok(())
+    Ok(errors)
 }
 
 /// The frame pairs the evaluation uses.
@@ -300,6 +307,8 @@ pub fn evaluate(
             cam,
             pnp: &cfg.pnp,
         };
+        // Images and matches are kept for the picture of the middle pair only.
+        let picture_pair = k == pairs.len() / 2;
         let mut rows = Vec::new();
         for c in 0..conditions {
             let (ga, gb) = match (c, &cfg.blur) {
@@ -310,39 +319,27 @@ pub fn evaluate(
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
             let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
-            score(&mut orb[c], &m, kp, &pgt)?;
-            let depth = a.depth.as_ref().ok_or_else(|| Error::msg("depth"))?;
-            let errs = match_errors(&m, depth, cam, &pose_a, &pose_b)?;
-            rows.push((
-                ga.clone(),
-                gb.clone(),
-                m,
-                errs,
-                if c == 0 {
-                    "ORB + BF"
-                } else {
-                    "ORB + BF, blurred"
-                },
-            ));
+            let errs = score(&mut orb[c], &m, kp, &pgt)?;
+            let blurred = if c == 0 { "" } else { ", blurred" };
+            if picture_pair {
+                rows.push((
+                    ga.clone(),
+                    gb.clone(),
+                    m,
+                    errs,
+                    format!("ORB + BF{blurred}"),
+                ));
+            }
             if let Some(det) = detector {
                 let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
                 let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
-                score(&mut net[c], &m, fa.len() + fb.len(), &pgt)?;
-                let errs = match_errors(&m, depth, cam, &pose_a, &pose_b)?;
-                rows.push((
-                    ga,
-                    gb,
-                    m,
-                    errs,
-                    if c == 0 {
-                        "FPFDCNN + range"
-                    } else {
-                        "FPFDCNN + range, blurred"
-                    },
-                ));
+                let errs = score(&mut net[c], &m, fa.len() + fb.len(), &pgt)?;
+                if picture_pair {
+                    rows.push((ga, gb, m, errs, format!("FPFDCNN + range{blurred}")));
+                }
             }
         }
-        if k == pairs.len() / 2 {
+        if picture_pair {
             picture = Some(draw_matches(&rows));
         }
     }
@@ -368,13 +365,7 @@ pub fn evaluate(
     ))
 }
 
-type Row = (
-    GrayImage,
-    GrayImage,
-    PixelMatches,
-    Vec<Option<f64>>,
-    &'static str,
-);
+type Row = (GrayImage, GrayImage, PixelMatches, Vec<Option<f64>>, String);
 
 /// Rows of `A | B` with match lines: green correct, red wrong, grey unjudged.
 fn draw_matches(rows: &[Row]) -> RgbImage {

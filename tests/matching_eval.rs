@@ -10,7 +10,7 @@ use std::path::Path;
 #[test]
 fn orb_matches_on_real_frames_are_scored_and_drawn() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let seq = TumSequence::open(&root.join("datasets/fixtures/tum_fr1_rpy_head10")).unwrap();
+    let seq = TumSequence::open(root.join("datasets/fixtures/tum_fr1_rpy_head10")).unwrap();
     let cam = Camera::load("fr1").unwrap();
     let cfg = MatchingEvalConfig {
         gap: 3,

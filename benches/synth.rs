@@ -49,6 +49,7 @@ fn main() {
     let frames: usize = std::env::var("SYNTH_BENCH_FRAMES")
         .ok()
         .and_then(|v| v.parse().ok())
+        .filter(|&n| n > 0)
         .unwrap_or(60);
     let cfg = SynthConfig {
         frames,

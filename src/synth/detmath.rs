@@ -161,16 +161,6 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     }
 }
 
-/// `sin(x)`.
-pub fn sin(x: f64) -> f64 {
-    sin_cos(x).0
-}
-
-/// `cos(x)`.
-pub fn cos(x: f64) -> f64 {
-    sin_cos(x).1
-}
-
 /// `atan(x)` from basic operations (argument halving, then a short series).
 pub fn atan(x: f64) -> f64 {
     if x.is_nan() {

@@ -257,7 +257,7 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
                 let rendered: Vec<(usize, FrameFiles)> = chunk
                     .iter()
                     .map(|&k| {
-                        let noise = noise_base.wrapping_add(k as u32 * 7919);
+                        let noise = noise_base.wrapping_add((k as u32).wrapping_mul(7919));
                         let (files, pose, gain) =
                             render_frame(&renderer, &motion, cfg, times[k], noise, ae);
                         ae = Some(gain);
@@ -305,10 +305,22 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
                         let nseed = (seed as u32) ^ 0x0e1a_0000 ^ (v as u32).wrapping_mul(7919);
                         let gain = sensor::auto_exposure(&rgb)
                             * sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
-                        let mut f = finish(&r, &rgb, gain, cfg, &camera, nseed);
-                        f.depth = sensor::exact_depth(&r);
-                        f.depth_gt = None;
-                        f.color_labels = false;
+                        // Training views: exact depth, no sensor simulation.
+                        let f = FrameFiles {
+                            rgb: sensor::color_image(
+                                &rgb,
+                                r.width,
+                                r.height,
+                                gain,
+                                &cfg.render,
+                                &cfg.sensor,
+                                nseed,
+                            ),
+                            depth: sensor::exact_depth(&r),
+                            depth_gt: None,
+                            labels: sensor::label_image(&r),
+                            color_labels: false,
+                        };
                         (v, f)
                     })
                     .collect();

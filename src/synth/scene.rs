@@ -32,12 +32,9 @@ pub struct Wall {
 }
 
 impl Wall {
-    /// Unit direction from `a` to `b`.
+    /// Unit direction from `a` to `b` (the normal turned back: no division per call).
     pub fn dir(&self) -> [f32; 2] {
-        [
-            (self.b[0] - self.a[0]) / self.len,
-            (self.b[1] - self.a[1]) / self.len,
-        ]
+        [self.n[1], -self.n[0]]
     }
 
     /// The placement frame of an item against this wall, centred at `s` metres
@@ -270,19 +267,6 @@ impl Scene {
             }
         }
         self.bvh.closest(ray, tmin, tmax).or(best)
-    }
-
-    /// Whether anything blocks the segment `o + t d`, `t` in `(tmin, tmax)`,
-    /// for segments that start and end inside the room: the shell can only
-    /// block them in an L-shaped room.
-    #[inline]
-    pub fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
-        self.bvh.occluded(ray, tmin, tmax)
-            || (self.room.notch.is_some()
-                && self
-                    .shell
-                    .iter()
-                    .any(|p| p.intersect(ray, tmin, tmax).is_some()))
     }
 
     /// Distance from a point to the nearest solid (0 inside one); points outside

@@ -37,10 +37,6 @@ impl Place {
         Place { o, c, s }
     }
 
-    pub fn identity() -> Self {
-        Place::new(V3::zeros(), 1.0, 0.0)
-    }
-
     /// World position of a local point.
     pub fn world(&self, l: V3) -> V3 {
         V3::new(
@@ -245,7 +241,7 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn commit(&mut self, g: Group, p: &Place) -> bool {
+    fn commit(&mut self, g: &Group, p: &Place) -> bool {
         let world: Vec<Solid> = g.solids.iter().map(|s| p.apply(s)).collect();
         let mut bb = (V3::repeat(f32::MAX), V3::repeat(f32::MIN));
         for s in &world {
@@ -309,7 +305,7 @@ impl<'a> Builder<'a> {
                 continue;
             }
             let s = self.r(lo, hi);
-            if self.commit(g.clone(), &wall.place(s, 0.0)) {
+            if self.commit(&g, &wall.place(s, 0.0)) {
                 return true;
             }
         }
@@ -326,7 +322,7 @@ impl<'a> Builder<'a> {
             let y = self.r(0.4 + reach, self.room.depth - 0.4 - reach);
             let quarter = self.rng.random_range(0..4) as f64 * std::f64::consts::FRAC_PI_2;
             let (c, s) = yaw(quarter + self.r(-0.25, 0.25) as f64);
-            if self.commit(g.clone(), &Place::new(V3::new(x, y, 0.0), c, s)) {
+            if self.commit(&g, &Place::new(V3::new(x, y, 0.0), c, s)) {
                 return true;
             }
         }

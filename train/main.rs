@@ -160,10 +160,7 @@ fn export(args: &ExportArgs) -> Result<()> {
         "sdfcnn" => {
             let p =
                 sdf_slam::sdfcnn::inference::SdfcnnPredictor::load(&weights, BackendKind::Flex)?;
-            let tmp = sdf_slam::io::temp_path(&target);
-            p.save_f16(&tmp)?;
-            std::fs::rename(&tmp, &target)
-                .with_context(|| format!("cannot write {}", target.display()))?;
+            p.save_f16(&target)?;
         }
         other => anyhow::bail!("{}: no network called \"{other}\"", config.display()),
     }

@@ -8,22 +8,27 @@ use burn::prelude::*;
 use burn::tensor::DType;
 use std::path::{Path, PathBuf};
 
-struct Cast(DType);
+/// Copies every float parameter to f16 on the flex device: burn-ndarray has no f16
+/// tensors (casting there panics), so the copy works from a module on any backend.
+struct ToF16;
 
-impl ModuleMapper for Cast {
+impl ModuleMapper for ToF16 {
     fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        let dtype = self.0;
-        param.map(|t| t.cast(dtype))
+        param.map(|t| {
+            let data = t.into_data().convert_dtype(DType::F16);
+            Tensor::from_data(data, (&Device::flex(), DType::F16))
+        })
     }
 }
 
-/// Saves a module with every float parameter in half precision (about half the size).
+/// Saves a module with every float parameter in half precision (about half the size),
+/// atomically (temp file + rename; the temp file is removed when saving fails).
 pub fn save_f16<M: Module>(module: M, path: &Path) -> Result<()> {
     let tmp = crate::io::temp_path(path);
-    module
-        .map(&mut Cast(DType::F16))
-        .save_file(&tmp)
-        .map_err(|e| Error::invalid(path, format!("cannot save weights: {e}")))?;
+    if let Err(e) = module.map(&mut ToF16).save_file(&tmp) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::invalid(path, format!("cannot save weights: {e}")));
+    }
     std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
 }
 

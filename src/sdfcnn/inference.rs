@@ -9,10 +9,8 @@
 //! 1-40 for classes 0-39; void is black); depth uses matplotlib's viridis (near = dark
 //! purple, far = yellow, missing = black).
 
-use burn::module::{ModuleMapper, Param};
 use burn::prelude::*;
 use burn::store::ModuleRecord;
-use burn::tensor::DType;
 use image::RgbImage;
 use plotters::style::colors::colormaps::ViridisRGB;
 use std::path::{Path, PathBuf};
@@ -320,29 +318,10 @@ impl SdfcnnPredictor {
         Ok(self.predict_timed(rgb)?.0)
     }
 
-    /// Saves the weights as f16 burnpack (half the size); [`Self::load`] reads it back into the
-    /// f32 network.
+    /// Saves the weights as f16 burnpack (half the size), atomically; [`Self::load`] reads
+    /// it back into the f32 network.
     pub fn save_f16(&self, path: &Path) -> Result<()> {
-        let half = self.model.clone().map(&mut ToF16 {
-            device: Device::flex(),
-        });
-        half.save_file(path)
-            .map_err(|e| Error::invalid(path, format!("cannot save model: {e}")))
-    }
-}
-
-/// Copies every float parameter to f16 on the flex device (ndarray has no f16 tensors).
-struct ToF16 {
-    device: Device,
-}
-
-impl ModuleMapper for ToF16 {
-    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        let device = self.device.clone();
-        param.map(|t| {
-            let data = t.into_data().convert_dtype(DType::F16);
-            Tensor::from_data(data, (&device, DType::F16))
-        })
+        crate::nn::weights::save_f16(self.model.clone(), path)
     }
 }
 

@@ -3,9 +3,12 @@
 //! Harris corners as detector targets, and their ground-truth matches (eqs 5-7,
 //! [`crate::dataset::fp_pairs`]) for the descriptors.
 //!
-//! Images are kept in memory as grayscale at the training resolution; match
-//! positions are scaled to it. The last `val_fraction` of every sequence (by
-//! frame index) is held out for validation.
+//! A training image of `height x width` pixels is either a window cropped from the
+//! full-resolution frame ([`Sampling::Crop`], the default: keypoints are learnt at the
+//! pixel scale the network runs at, and at every position relative to its 16x16
+//! cells) or the whole frame resized ([`Sampling::Resize`]). Frames are kept in
+//! memory as grayscale. The last `val_fraction` of every sequence (by frame index)
+//! is held out for validation.
 
 use crate::camera::Camera;
 use crate::dataset::fp_pairs::{FpConfig, FpMatch, fp_pairs};
@@ -48,6 +51,23 @@ pub struct FpDataConfig {
     pub val_fraction: f64,
     /// Photometric augmentation of both images of a pair.
     pub augment: PhotometricAugment,
+    /// How a frame becomes a training image.
+    pub sampling: Sampling,
+}
+
+/// How a frame becomes a `height x width` training image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampling {
+    /// A window of the full-resolution frame, drawn anew for every batch around a
+    /// ground-truth match; frame B's window follows A's by the matches' median
+    /// displacement. Detector targets are the full-resolution Harris corners.
+    #[default]
+    Crop,
+    /// The whole frame resized to the training size (targets: Harris corners of the
+    /// resized image; match positions scaled). A network trained this way sees
+    /// keypoints at another scale than a full-resolution frame shows them.
+    Resize,
 }
 
 impl Default for FpDataConfig {
@@ -63,11 +83,12 @@ impl Default for FpDataConfig {
             },
             val_fraction: 0.15,
             augment: PhotometricAugment::default(),
+            sampling: Sampling::default(),
         }
     }
 }
 
-/// A frame at the training resolution.
+/// A frame at the training resolution (full resolution when cropping).
 #[derive(Debug, Clone)]
 pub struct FrameEntry {
     pub gray: GrayF32,
@@ -75,7 +96,7 @@ pub struct FrameEntry {
     pub targets: Vec<(usize, usize)>,
 }
 
-/// A frame pair with its matches at the training resolution.
+/// A frame pair with its matches in its frames' pixels.
 #[derive(Debug, Clone)]
 pub struct PairEntry {
     pub a: usize,
@@ -86,8 +107,10 @@ pub struct PairEntry {
 /// Frames and pairs of one split.
 #[derive(Debug, Clone, Default)]
 pub struct FpDataset {
+    /// Training image size.
     pub height: usize,
     pub width: usize,
+    pub sampling: Sampling,
     pub frames: Vec<FrameEntry>,
     pub pairs: Vec<PairEntry>,
 }
@@ -98,7 +121,7 @@ pub struct FpBatch {
     pub image_b: Tensor<4>,
     pub target_a: Tensor<4>,
     pub target_b: Tensor<4>,
-    /// Matches of each pair (training resolution), at most `max_matches`.
+    /// Matches of each pair (training-image pixels), at most `max_matches`.
     pub matches: Vec<Vec<FpMatch>>,
 }
 
@@ -152,9 +175,11 @@ impl FpDataset {
                 cfg.val_fraction
             )));
         }
+        let crop = cfg.sampling == Sampling::Crop;
         let mut train = FpDataset {
             height,
             width,
+            sampling: cfg.sampling,
             ..Default::default()
         };
         let mut val = train.clone();
@@ -167,6 +192,16 @@ impl FpDataset {
                     "FPFDCNN training needs depth and groundtruth.txt",
                 ));
             }
+            if crop && ((camera.width as usize) < width || (camera.height as usize) < height) {
+                return Err(Error::invalid(
+                    &src.path,
+                    format!(
+                        "frames of {}x{} are smaller than the {width}x{height} training crops \
+                         (use sampling = \"resize\" or a smaller height/width)",
+                        camera.width, camera.height
+                    ),
+                ));
+            }
             progress(&format!("{}: {} frames", seq.name(), seq.len()));
             let n = seq.len();
             let cut = ((n as f64) * (1.0 - cfg.val_fraction)).round() as usize;
@@ -177,7 +212,11 @@ impl FpDataset {
                 .into_par_iter()
                 .map(|i| {
                     let gray = GrayF32::from_gray(&seq.load_gray(i)?);
-                    let gray = resize_gray(&gray, width, height);
+                    let gray = if crop {
+                        gray
+                    } else {
+                        resize_gray(&gray, width, height)
+                    };
                     let targets = harris_corners(&gray, &cfg.targets)
                         .iter()
                         .map(|k| (k.x as usize, k.y as usize))
@@ -193,9 +232,15 @@ impl FpDataset {
                     val.frames.push(f)
                 }
             }
+            // Frame pixels to stored-frame pixels.
+            let (fw, fh) = if crop {
+                (camera.width as usize, camera.height as usize)
+            } else {
+                (width, height)
+            };
             let (sx, sy) = (
-                width as f32 / camera.width as f32,
-                height as f32 / camera.height as f32,
+                fw as f32 / camera.width as f32,
+                fh as f32 / camera.height as f32,
             );
             for pair in fp_pairs(&seq, &camera, &cfg.pairs) {
                 let pair = pair?;
@@ -207,7 +252,7 @@ impl FpDataset {
                         a: scale_point(m.a, sx, sy),
                         b: scale_point(m.b, sx, sy),
                     })
-                    .filter(|m| inside(m.a, width, height) && inside(m.b, width, height))
+                    .filter(|m| inside(m.a, fw, fh) && inside(m.b, fw, fh))
                     .collect();
                 if matches.len() < 8 {
                     continue;
@@ -252,18 +297,26 @@ impl FpDataset {
         let mut matches = Vec::with_capacity(n);
         for (k, &id) in ids.iter().enumerate() {
             let pair = &self.pairs[id];
+            let (windows, mut m) = match self.sampling {
+                Sampling::Resize => ([[0, 0]; 2], pair.matches.clone()),
+                Sampling::Crop => self.crop_windows(pair, rng),
+            };
             for (side, frame) in [pair.a, pair.b].into_iter().enumerate() {
                 let f = &self.frames[frame];
+                let [x0, y0] = windows[side];
+                let window = crop(&f.gray, x0, y0, w, h);
                 let g = match augment {
-                    Some(a) => a.apply(&f.gray, rng)?,
-                    None => f.gray.clone(),
+                    Some(a) => a.apply(&window, rng)?,
+                    None => window,
                 };
                 img[side][k * h * w..(k + 1) * h * w].copy_from_slice(&g.data);
                 for &(x, y) in &f.targets {
-                    tgt[side][k * h * w + y * w + x] = 1.0;
+                    let (x, y) = (x.wrapping_sub(x0), y.wrapping_sub(y0));
+                    if x < w && y < h {
+                        tgt[side][k * h * w + y * w + x] = 1.0;
+                    }
                 }
             }
-            let mut m = pair.matches.clone();
             m.shuffle(rng);
             m.truncate(max_matches);
             matches.push(m);
@@ -281,6 +334,154 @@ impl FpDataset {
     }
 }
 
+impl FpDataset {
+    /// Crop windows `[x0, y0]` of A and B for one pair, and the pair's matches inside
+    /// both, in window pixels. A's window holds a randomly chosen match at a random
+    /// place; B's is moved by the median displacement of the matches in A's window
+    /// (both clamped to the frames).
+    fn crop_windows(
+        &self,
+        pair: &PairEntry,
+        rng: &mut impl rand::Rng,
+    ) -> ([[usize; 2]; 2], Vec<FpMatch>) {
+        use rand::RngExt;
+        let (w, h) = (self.width, self.height);
+        let fa = &self.frames[pair.a].gray;
+        let fb = &self.frames[pair.b].gray;
+        let origin = |centre: f32, size: usize, full: usize| -> usize {
+            (centre.round().max(0.0) as usize).min(full - size)
+        };
+        let anchor = pair.matches[rng.random_range(0..pair.matches.len())].a;
+        let ax = origin(anchor[0] - rng.random_range(0.0..w as f32), w, fa.width);
+        let ay = origin(anchor[1] - rng.random_range(0.0..h as f32), h, fa.height);
+        let in_a: Vec<&FpMatch> = pair
+            .matches
+            .iter()
+            .filter(|m| inside([m.a[0] - ax as f32, m.a[1] - ay as f32], w, h))
+            .collect();
+        let median = |mut v: Vec<f32>| {
+            v.sort_by(f32::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        };
+        let dx = median(in_a.iter().map(|m| m.b[0] - m.a[0]).collect());
+        let dy = median(in_a.iter().map(|m| m.b[1] - m.a[1]).collect());
+        let bx = origin(ax as f32 + dx, w, fb.width);
+        let by = origin(ay as f32 + dy, h, fb.height);
+        let shift = |p: [f32; 2], x0: usize, y0: usize| [p[0] - x0 as f32, p[1] - y0 as f32];
+        let matches = in_a
+            .into_iter()
+            .map(|m| FpMatch {
+                a: shift(m.a, ax, ay),
+                b: shift(m.b, bx, by),
+            })
+            .filter(|m| inside(m.b, w, h))
+            .collect();
+        ([[ax, ay], [bx, by]], matches)
+    }
+}
+
+/// The `w x h` window of `img` at `(x0, y0)` (which must fit).
+fn crop(img: &GrayF32, x0: usize, y0: usize, w: usize, h: usize) -> GrayF32 {
+    if (x0, y0, w, h) == (0, 0, img.width, img.height) {
+        return img.clone();
+    }
+    let mut out = GrayF32::new(w, h);
+    for (y, row) in out.data.chunks_exact_mut(w).enumerate() {
+        let start = (y0 + y) * img.width + x0;
+        row.copy_from_slice(&img.data[start..start + w]);
+    }
+    out
+}
+
 fn inside(p: [f32; 2], w: usize, h: usize) -> bool {
     p[0] >= 0.0 && p[1] >= 0.0 && p[0] <= (w - 1) as f32 && p[1] <= (h - 1) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Frame B is frame A moved by `(dx, dy)`; matches follow the motion exactly.
+    fn shifted_pair(dx: usize, dy: usize) -> FpDataset {
+        let (w, h) = (160, 96);
+        let mut a = GrayF32::new(w, h);
+        for (i, v) in a.data.iter_mut().enumerate() {
+            *v = ((i * 7919) % 251) as f32 / 251.0;
+        }
+        let mut b = GrayF32::new(w, h);
+        for y in dy..h {
+            for x in dx..w {
+                b.data[y * w + x] = a.data[(y - dy) * w + (x - dx)];
+            }
+        }
+        let targets: Vec<(usize, usize)> = (0..20).map(|k| (5 + 7 * k, 3 + 4 * k)).collect();
+        let matches: Vec<FpMatch> = (0..60)
+            .map(|k| {
+                let a = [(3 + (k * 37) % 100) as f32, (2 + (k * 13) % 60) as f32];
+                FpMatch {
+                    a,
+                    b: [a[0] + dx as f32, a[1] + dy as f32],
+                }
+            })
+            .collect();
+        FpDataset {
+            height: 32,
+            width: 48,
+            sampling: Sampling::Crop,
+            frames: vec![
+                FrameEntry {
+                    gray: a,
+                    targets: targets.clone(),
+                },
+                FrameEntry { gray: b, targets },
+            ],
+            pairs: vec![PairEntry {
+                a: 0,
+                b: 1,
+                matches,
+            }],
+        }
+    }
+
+    #[test]
+    fn crops_follow_the_ground_truth_motion() {
+        use rand::SeedableRng;
+        let data = shifted_pair(21, 9);
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut seen = 0;
+        for _ in 0..20 {
+            let batch = data.batch(&[0], None, 1000, &mut rng, &device).unwrap();
+            let img = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+            let (ia, ib) = (img(batch.image_a), img(batch.image_b));
+            assert_eq!(ia.len(), 32 * 48);
+            // A matched pixel shows the same image content in both crops.
+            for m in &batch.matches[0] {
+                let at = |v: &[f32], p: [f32; 2]| v[p[1] as usize * 48 + p[0] as usize];
+                assert!(m.a[0] >= 0.0 && m.a[0] <= 47.0 && m.b[1] >= 0.0 && m.b[1] <= 31.0);
+                assert_eq!(at(&ia, m.a), at(&ib, m.b), "match {m:?}");
+            }
+            seen += batch.matches[0].len();
+            // Every crop keeps targets inside it only, as 0/1 values.
+            let ta = img(batch.target_a);
+            assert!(ta.iter().all(|v| *v == 0.0 || *v == 1.0));
+        }
+        assert!(seen > 20 * 4, "crops are drawn around matches ({seen})");
+    }
+
+    #[test]
+    fn resize_sampling_keeps_whole_frames() {
+        let mut data = shifted_pair(0, 0);
+        data.sampling = Sampling::Resize;
+        data.width = 160;
+        data.height = 96;
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(1);
+        let batch = data.batch(&[0], None, 1000, &mut rng, &device).unwrap();
+        assert_eq!(batch.matches[0].len(), 60);
+        let ta = batch.target_a.into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(ta.iter().filter(|v| **v == 1.0).count(), 20);
+    }
 }

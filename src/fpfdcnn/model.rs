@@ -72,6 +72,9 @@ pub enum FpfdcnnError {
 pub struct FpfdcnnOutput {
     /// FP: keypoint probability map, `[N, 1, H, W]`.
     pub prob: Tensor<4>,
+    /// L8 before its sigmoid: per-cell logits of the `cell²` sub-pixels, `[N, cell², H/cell,
+    /// W/cell]` (the training loss's localisation term reads them).
+    pub logits: Tensor<4>,
     /// L10: coarse descriptors, `[N, descriptor_dim, H/cell, W/cell]`.
     pub descriptors: Tensor<4>,
 }
@@ -195,7 +198,8 @@ impl Fpfdcnn {
 
         let det = elu(conv2d(&self.l7, x.clone()), ELU_ALPHA);
         trace.record("L7", describe(&self.l7, "ELU"), &det);
-        let det = sigmoid(conv2d(&self.l8, det));
+        let logits = conv2d(&self.l8, det);
+        let det = sigmoid(logits.clone());
         trace.record("L8", describe(&self.l8, "sigmoid"), &det);
         let prob = pixel_shuffle(det, self.cell);
         trace.record("FP", format!("pixel shuffle x{}", self.cell), &prob);
@@ -204,7 +208,11 @@ impl Fpfdcnn {
         trace.record("L9", describe(&self.l9, "ELU"), &desc);
         let descriptors = conv2d(&self.l10, desc);
         trace.record("L10", describe(&self.l10, "linear"), &descriptors);
-        Ok(FpfdcnnOutput { prob, descriptors })
+        Ok(FpfdcnnOutput {
+            prob,
+            logits,
+            descriptors,
+        })
     }
 
     /// FD layer: bilinear upsampling (`align_corners=False`) of the coarse descriptors to the

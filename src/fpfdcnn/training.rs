@@ -7,7 +7,9 @@
 //! epoch, data order), and a stop with a clear message if the loss is NaN.
 
 use super::data::{FpBatch, FpDataConfig, FpDataset};
-use super::loss::{FpfdcnnLossConfig, descriptor_infonce, detector_bce, sample_descriptors};
+use super::loss::{
+    FpfdcnnLossConfig, descriptor_infonce, detector_bce, detector_cell_ce, sample_descriptors,
+};
 use super::model::{Fpfdcnn, FpfdcnnConfig};
 use crate::error::{Error, Result};
 use crate::training::{
@@ -57,6 +59,9 @@ pub struct FpfdcnnTrainConfig {
     /// At most this many pairs per epoch (0: all), drawn in the seeded order.
     #[serde(default)]
     pub pairs_per_epoch: usize,
+    /// Validate on at most this many pairs, spread evenly over the validation split (0: all).
+    #[serde(default)]
+    pub val_pairs: usize,
     #[serde(default)]
     pub data: FpDataConfig,
     #[serde(default)]
@@ -144,6 +149,7 @@ impl FpfdcnnTrainConfig {
 struct BatchLoss {
     total: Tensor<1>,
     detector: f64,
+    localization: f64,
     descriptor: f64,
     accuracy: f64,
 }
@@ -154,12 +160,22 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
     let out_a = model.forward(batch.image_a).map_err(err)?;
     let out_b = model.forward(batch.image_b).map_err(err)?;
     let l = &cfg.loss;
+    let cell = model.cell();
+    let loc = (detector_cell_ce(out_a.logits, batch.target_a.clone(), cell)
+        + detector_cell_ce(out_b.logits, batch.target_b.clone(), cell))
+    .div_scalar(2.0);
     let det = (detector_bce(out_a.prob, batch.target_a, l.pos_weight)
         + detector_bce(out_b.prob, batch.target_b, l.pos_weight))
     .div_scalar(2.0);
     let mut desc_terms = Vec::new();
     let mut acc = 0.0;
-    for (i, m) in batch.matches.iter().enumerate() {
+    // A crop can hold fewer than two matches: nothing to contrast there.
+    for (i, m) in batch
+        .matches
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| m.len() >= 2)
+    {
         let pa: Vec<[f32; 2]> = m.iter().map(|x| x.a).collect();
         let pb: Vec<[f32; 2]> = m.iter().map(|x| x.b).collect();
         let da = sample_descriptors(&out_a.descriptors, i, &pa, size);
@@ -169,13 +185,21 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
         acc += a as f64;
     }
     let n = desc_terms.len().max(1) as f64;
-    let desc = Tensor::cat(desc_terms, 0).sum().div_scalar(n);
+    let desc = if desc_terms.is_empty() {
+        Tensor::<1>::zeros([1], &det.device())
+    } else {
+        Tensor::cat(desc_terms, 0).sum().div_scalar(n)
+    };
     let detector = det.clone().into_scalar::<f32>() as f64;
+    let localization = loc.clone().into_scalar::<f32>() as f64;
     let descriptor = desc.clone().into_scalar::<f32>() as f64;
-    let total = det.mul_scalar(l.detector_weight) + desc.mul_scalar(l.descriptor_weight);
+    let total = det.mul_scalar(l.detector_weight)
+        + loc.mul_scalar(l.localization_weight)
+        + desc.mul_scalar(l.descriptor_weight);
     Ok(BatchLoss {
         total,
         detector,
+        localization,
         descriptor,
         accuracy: acc / n,
     })
@@ -278,7 +302,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             .progress_chars("=> "),
         );
         bar.set_prefix(format!("{}/{}", epoch + 1, cfg.epochs));
-        let (mut sum, mut sum_det, mut sum_desc, mut sum_acc) = (0.0, 0.0, 0.0, 0.0);
+        let mut sums = LossSums::default();
         let mut skipped = 0usize;
         for (bi, ids) in batches.iter().enumerate() {
             let mut rng = batch_rng(cfg.seed, epoch, bi);
@@ -315,31 +339,21 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             skipped = 0;
             model = optim.step(lr, model, grads);
             state.step += 1;
-            sum += value;
-            sum_det += l.detector;
-            sum_desc += l.descriptor;
-            sum_acc += l.accuracy;
+            sums.add(value, &l);
             bar.inc(1);
             bar.set_message(format!(
-                "loss {:.4} (det {:.4} desc {:.4})",
-                sum / (bi + 1) as f64,
-                sum_det / (bi + 1) as f64,
-                sum_desc / (bi + 1) as f64
+                "loss {:.4} (det {:.4} loc {:.4} desc {:.4})",
+                sums.mean(sums.total),
+                sums.mean(sums.detector),
+                sums.mean(sums.localization),
+                sums.mean(sums.descriptor)
             ));
         }
         bar.finish_and_clear();
-        let nb = batches.len().max(1) as f64;
         let mut values = BTreeMap::new();
-        values.insert("train_loss".to_string(), sum / nb);
-        values.insert("train_detector".to_string(), sum_det / nb);
-        values.insert("train_descriptor".to_string(), sum_desc / nb);
-        values.insert("train_desc_top1".to_string(), sum_acc / nb);
+        sums.insert("train", &mut values);
         if !val.pairs.is_empty() {
-            let (vl, vd, vs, va) = validate(&model.valid(), &val, &cfg)?;
-            values.insert("val_loss".to_string(), vl);
-            values.insert("val_detector".to_string(), vd);
-            values.insert("val_descriptor".to_string(), vs);
-            values.insert("val_desc_top1".to_string(), va);
+            validate(&model.valid(), &val, &cfg)?.insert("val", &mut values);
         }
         state.epoch = epoch + 1;
         state.history.push(EpochRecord {
@@ -362,7 +376,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             run.root.join("loss.png"),
             "FPFDCNN loss",
             "loss",
-            &["loss", "detector", "descriptor"],
+            &["loss", "detector", "localization", "descriptor"],
             true,
         )?;
         state.history.plot(
@@ -385,26 +399,62 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     Ok(())
 }
 
-/// Mean validation loss terms and descriptor top-1 accuracy, without augmentation.
-fn validate(
-    model: &Fpfdcnn,
-    val: &FpDataset,
-    cfg: &FpfdcnnTrainConfig,
-) -> Result<(f64, f64, f64, f64)> {
+/// Validation loss terms and descriptor top-1 accuracy, without augmentation.
+fn validate(model: &Fpfdcnn, val: &FpDataset, cfg: &FpfdcnnTrainConfig) -> Result<LossSums> {
     let device = cfg.backend.device();
     let model = model.clone().to_device(&device);
-    let ids: Vec<usize> = (0..val.pairs.len()).collect();
-    let (mut l, mut d, mut s, mut a) = (0.0, 0.0, 0.0, 0.0);
-    let chunks: Vec<&[usize]> = ids.chunks(cfg.batch_size).collect();
-    for (bi, c) in chunks.iter().enumerate() {
+    let n = val.pairs.len();
+    let keep = if cfg.val_pairs == 0 {
+        n
+    } else {
+        cfg.val_pairs.min(n)
+    };
+    let ids: Vec<usize> = (0..keep).map(|k| k * n / keep.max(1)).collect();
+    let mut sums = LossSums::default();
+    for (bi, c) in ids.chunks(cfg.batch_size).enumerate() {
         let mut rng = batch_rng(cfg.seed, usize::MAX, bi);
         let batch = val.batch(c, None, cfg.loss.max_matches, &mut rng, &device)?;
         let r = batch_loss(&model, batch, cfg)?;
-        l += r.total.into_scalar::<f32>() as f64;
-        d += r.detector;
-        s += r.descriptor;
-        a += r.accuracy;
+        sums.add(r.total.clone().into_scalar::<f32>() as f64, &r);
     }
-    let n = chunks.len().max(1) as f64;
-    Ok((l / n, d / n, s / n, a / n))
+    Ok(sums)
+}
+
+/// Sums of the loss terms over the batches of an epoch.
+#[derive(Default)]
+struct LossSums {
+    batches: usize,
+    total: f64,
+    detector: f64,
+    localization: f64,
+    descriptor: f64,
+    top1: f64,
+}
+
+impl LossSums {
+    fn add(&mut self, total: f64, l: &BatchLoss) {
+        self.batches += 1;
+        self.total += total;
+        self.detector += l.detector;
+        self.localization += l.localization;
+        self.descriptor += l.descriptor;
+        self.top1 += l.accuracy;
+    }
+
+    fn mean(&self, sum: f64) -> f64 {
+        sum / self.batches.max(1) as f64
+    }
+
+    /// The means as `{prefix}_loss`, `{prefix}_detector`, ... metrics.
+    fn insert(&self, prefix: &str, values: &mut BTreeMap<String, f64>) {
+        for (name, sum) in [
+            ("loss", self.total),
+            ("detector", self.detector),
+            ("localization", self.localization),
+            ("descriptor", self.descriptor),
+            ("desc_top1", self.top1),
+        ] {
+            values.insert(format!("{prefix}_{name}"), self.mean(sum));
+        }
+    }
 }

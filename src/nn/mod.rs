@@ -18,5 +18,5 @@ pub use init::seeded_init;
 pub use params::trainable_params;
 pub use pool::max_pool2d;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};
-pub use shuffle::pixel_shuffle;
+pub use shuffle::{pixel_shuffle, pixel_unshuffle};
 pub use trace::ShapeTrace;

@@ -19,6 +19,23 @@ pub fn pixel_shuffle(x: Tensor<4>, r: usize) -> Tensor<4> {
         .reshape([n, oc, h * r, w * r])
 }
 
+/// The inverse of [`pixel_shuffle`]: `[N, C, H·r, W·r]` into `[N, C·r², H, W]` with
+/// `out[c·r² + i·r + j, h, w] = in[c, h·r + i, w·r + j]` (PyTorch's `pixel_unshuffle`).
+///
+/// # Panics
+/// If `r` is zero or the height or width is not a multiple of `r`.
+pub fn pixel_unshuffle(x: Tensor<4>, r: usize) -> Tensor<4> {
+    let [n, c, hr, wr] = x.dims();
+    assert!(
+        r > 0 && hr % r == 0 && wr % r == 0,
+        "pixel_unshuffle: {hr}x{wr} is not a multiple of {r}"
+    );
+    let (h, w) = (hr / r, wr / r);
+    x.reshape([n, c, h, r, w, r])
+        .permute([0, 1, 3, 5, 2, 4])
+        .reshape([n, c * r * r, h, w])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -42,6 +59,14 @@ mod tests {
             60., 70., 61., 71., // c1 row1: ch6, ch7
         ];
         assert_eq!(y.into_data().try_to_vec::<f32>().expect("f32"), want);
+    }
+
+    #[test]
+    fn pixel_unshuffle_inverts_pixel_shuffle() {
+        let d = Device::flex();
+        let x = Tensor::<4>::random([2, 2 * 9, 3, 5], burn::tensor::Distribution::Default, &d);
+        let back = pixel_unshuffle(pixel_shuffle(x.clone(), 3), 3);
+        assert_eq!(back.into_data(), x.into_data());
     }
 
     #[test]

@@ -44,3 +44,40 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
     assert_eq!(picture.width(), 2 * 640);
     assert!(markdown(&report).contains("| Clear | ORB + BF matcher |"));
 }
+
+/// The CLI evaluates the bundled FPFDCNN by default (when the crate has it), `--orb-only`
+/// skips it, and a bad ratio is an error before any pair is read.
+#[test]
+fn cli_defaults_and_bad_options() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = std::env::temp_dir().join(format!("sdf_matching_cli_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_eval"))
+            .current_dir(&dir)
+            .args(["matching", "--sequence"])
+            .arg(root.join("datasets/fixtures/tum_fr1_rpy_head10"))
+            .args(["--pairs", "1", "--json", "m.json"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let read = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("m.json")).unwrap()).unwrap()
+    };
+    let o = run(&["--orb-only"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(read().get("fpfdcnn_range").is_none());
+    if root.join("weights/fpfdcnn/model.bpk").is_file() {
+        let o = run(&[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v = read();
+        assert!(v["fpfdcnn_range"]["clean"]["matches"].as_u64().unwrap() > 10);
+        let matcher = v["range_matcher"].as_str().unwrap();
+        assert!(matcher.contains("global affine") && matcher.contains("mutual, ratio 0.8"));
+    }
+    let o = run(&["--orb-only", "--ratio", "0"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--ratio must be a positive number"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -4,7 +4,8 @@
 //! ```text
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
-//! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT] [--json FILE]
+//! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT | --orb-only]
+//!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--json FILE]
 //! eval seg --checkpoint DIR_OR_FILE --data DIR [--split FILE] [--backend ndarray|flex]
 //!          [--json FILE] [--out DIR] [--limit N]
 //! ```
@@ -79,9 +80,13 @@ struct MatchingArgs {
     /// Degradation of both images for the blurred half, e.g. motion:9 (a 9-pixel horizontal motion blur).
     #[arg(long)]
     blur: Option<String>,
-    /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); without it only ORB runs.
+    /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); default: the
+    /// bundled weights/fpfdcnn.
     #[arg(long)]
     fpfdcnn: Option<PathBuf>,
+    /// Evaluate ORB + BF only.
+    #[arg(long, conflicts_with = "fpfdcnn")]
+    orb_only: bool,
     /// Backend for FPFDCNN.
     #[arg(long, value_enum, default_value_t = BackendKind::Ndarray)]
     backend: BackendKind,
@@ -91,16 +96,17 @@ struct MatchingArgs {
     /// Range matcher window side, pixels (the paper: 140).
     #[arg(long, default_value_t = 140.0)]
     window: f32,
-    /// Keep only mutual nearest neighbours in the range matcher.
+    /// Centre each window at the keypoint's own position, as the paper's Fig. 4 draws it,
+    /// instead of where a global affine motion estimate (from confident descriptor
+    /// matches, RANSAC) moves the keypoint.
     #[arg(long)]
-    mutual: bool,
-    /// Lowe's ratio test in the range matcher (e.g. 0.9).
+    window_at_keypoint: bool,
+    /// Keep one-way nearest neighbours too (default: mutual nearest neighbours only).
     #[arg(long)]
-    ratio: Option<f32>,
-    /// Centre each window where a global affine motion estimate (from confident
-    /// descriptor matches, RANSAC) moves the keypoint, instead of at the keypoint itself.
-    #[arg(long)]
-    guided: bool,
+    no_mutual: bool,
+    /// Lowe's ratio test in the range matcher (1: off).
+    #[arg(long, default_value_t = 0.8)]
+    ratio: f32,
     /// Refine FPFDCNN keypoints to the image corner within this radius (0: off).
     #[arg(long, default_value_t = 0)]
     subpixel: usize,
@@ -188,8 +194,20 @@ fn matching(a: MatchingArgs) -> Result<()> {
     use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::load(&a.camera)?;
-    let detector = a
-        .fpfdcnn
+    let weights = match (&a.fpfdcnn, a.orb_only) {
+        (_, true) => None,
+        (Some(p), _) => Some(p.clone()),
+        (None, false) => {
+            let found = sdf_slam::slam::defaults::bundled_weights(
+                sdf_slam::slam::defaults::BUNDLED_FPFDCNN,
+            );
+            if found.is_none() {
+                eprintln!("note: no bundled weights/fpfdcnn found: ORB + BF only (--fpfdcnn CKPT)");
+            }
+            found
+        }
+    };
+    let detector = weights
         .as_ref()
         .map(|p| {
             let cfg = DetectorConfig {
@@ -214,9 +232,17 @@ fn matching(a: MatchingArgs) -> Result<()> {
         ..Default::default()
     };
     cfg.range.window = a.window;
-    cfg.range.mutual = a.mutual;
-    cfg.range.ratio = a.ratio;
-    cfg.guide = a.guided.then(sdf_slam::range_matcher::GuideConfig::default);
+    anyhow::ensure!(
+        a.ratio > 0.0 && a.ratio.is_finite(),
+        "--ratio must be a positive number (1 turns the test off), got {}",
+        a.ratio
+    );
+    cfg.range.mutual = !a.no_mutual;
+    cfg.range.ratio = (a.ratio < 1.0).then_some(a.ratio);
+    cfg.guide = (!a.window_at_keypoint).then(sdf_slam::range_matcher::GuideConfig::default);
+    if let Some(w) = &weights {
+        eprintln!("FPFDCNN weights: {}", w.display());
+    }
     let bar = indicatif::ProgressBar::new(0);
     let (report, picture) = evaluate(&seq, &cam, detector.as_ref(), &cfg, |k, n| {
         bar.set_length(n as u64);

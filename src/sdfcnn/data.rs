@@ -225,6 +225,31 @@ mod tests {
     }
 
     #[test]
+    fn the_official_mat_file_is_a_source() {
+        let src = DataSource {
+            split: Some("datasets/meta/nyuv2/splits_test_1based.txt".into()),
+            ..DataSource::folder("datasets/fixtures/nyuv2_mat/nyu_depth_v2_labeled_fixture.mat")
+        };
+        let data = SegDepthData::open(&[src]).expect("fixture");
+        assert_eq!(data.len(), 654);
+        assert!(
+            data.name(168).ends_with(".mat/000433"),
+            "{}",
+            data.name(168)
+        );
+        let s = data
+            .load_batch(
+                &[168],
+                [24, 32],
+                &AugmentConfig::default(),
+                &mut batch_rng(1, 0, 0),
+            )
+            .expect("loads");
+        assert!(s[0].depth.iter().any(|&d| d > 0.5 && d < 10.0));
+        assert!(s[0].labels.iter().any(|&l| l < 40));
+    }
+
+    #[test]
     fn bad_sources_are_errors() {
         let e = SegDepthData::open(&[DataSource::folder("no/such/folder")])
             .expect_err("missing folder");

@@ -87,7 +87,11 @@ impl NyuMat {
                 ));
             }
         }
+        // At most 2^28 pixels an image (16384 x 16384), so buffer sizes cannot overflow.
         let too_big = || Error::invalid(path, format!("dataset 'images': shape {s:?} too large"));
+        if s[2].saturating_mul(s[3]) > 1 << 28 {
+            return Err(too_big());
+        }
         let width = u32::try_from(s[2]).map_err(|_| too_big())?;
         let height = u32::try_from(s[3]).map_err(|_| too_big())?;
         let len = usize::try_from(s[0]).map_err(|_| too_big())?;

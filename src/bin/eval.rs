@@ -52,7 +52,8 @@ enum Command {
     /// The paper's Tables 6 and 7: matching accuracy and relative-pose error of
     /// ORB + BF and FPFDCNN + range matcher on clear and blurred frame pairs.
     Matching(MatchingArgs),
-    /// SDFCNN segmentation and depth accuracy on a NYUv2-layout folder: the paper's Table 8
+    /// SDFCNN segmentation and depth accuracy on a NYUv2-layout folder or the official .mat
+    /// file: the paper's Table 8
     /// (MPA, mIoU, time, parameters) and Table 9 (RMS, REL, δ, time, parameters), per class.
     Seg(seg::SegArgs),
 }

@@ -5,6 +5,7 @@ pub mod depth;
 pub mod fp_pairs;
 pub mod labels;
 pub mod nyu;
+pub mod nyu_mat;
 pub mod photometric;
 pub mod tum;
 
@@ -12,4 +13,5 @@ pub use depth::DepthImage;
 pub use fp_pairs::{FpConfig, FpMatch, FpPair, fp_pair, fp_pairs};
 pub use labels::LabelImage;
 pub use nyu::{NyuDataset, NyuItem};
+pub use nyu_mat::NyuMat;
 pub use tum::{Frame, FrameInfo, TumConfig, TumSequence, associate};

@@ -1,7 +1,7 @@
-//! NYU Depth v2 labelled images in the PNG layouts people convert the official
-//! `nyu_depth_v2_labeled.mat` to, with a split list.
+//! NYU Depth v2 labelled images, from the official `nyu_depth_v2_labeled.mat` itself
+//! ([`NyuMat`]) or from the PNG layouts people convert it to, with a split list.
 //!
-//! Two layouts are recognised:
+//! Two PNG layouts are recognised:
 //! * **folders**: `rgb/<id>.png`, `depth/<id>.png` (optional), `labels/<id>.png`
 //!   (what `synth` writes, and common converters);
 //! * **flat**: `<id>_rgb.png`, `<id>_depth.png` (optional), and `<id>_seg40.png`
@@ -17,6 +17,7 @@
 
 use super::depth::DepthImage;
 use super::labels::{LabelImage, VOID};
+use super::nyu_mat::NyuMat;
 use crate::error::{Error, Result};
 use crate::io::{read_text, records};
 use image::RgbImage;
@@ -26,15 +27,25 @@ use std::path::{Path, PathBuf};
 /// Number of NYUv2 semantic classes used by the paper.
 pub const NUM_CLASSES: usize = 40;
 
-/// Where one sample's files are.
+/// One sample: its id and where it is.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NyuSample {
     pub id: String,
-    pub rgb: PathBuf,
-    pub depth: Option<PathBuf>,
-    pub labels: PathBuf,
-    /// Labels are 894-class and need mapping to 40.
-    pub labels_894: bool,
+    pub source: SampleSource,
+}
+
+/// Where a sample is stored.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SampleSource {
+    /// PNG files; `labels_894`: the labels are 894-class and need mapping to 40.
+    Png {
+        rgb: PathBuf,
+        depth: Option<PathBuf>,
+        labels: PathBuf,
+        labels_894: bool,
+    },
+    /// Image `index` (0-based) of the dataset's `.mat` file.
+    Mat(usize),
 }
 
 /// A loaded sample.
@@ -46,14 +57,18 @@ pub struct NyuItem {
     pub labels: LabelImage,
 }
 
-/// A NYUv2-style dataset folder (894-class labels are mapped with the folder's
-/// own `nyu894_to_nyu40.csv` if it has one, else the standard table).
+/// A NYUv2 dataset: a folder in one of the PNG layouts (894-class labels are mapped with
+/// the folder's own `nyu894_to_nyu40.csv` if it has one, else the standard table), or the
+/// official `.mat` file.
 #[derive(Debug, Clone)]
 pub struct NyuDataset {
+    /// The folder or `.mat` file.
     pub root: PathBuf,
     pub samples: Vec<NyuSample>,
+    /// Depth PNG scale, `metres = value / depth_scale` (the `.mat` file stores metres).
     pub depth_scale: f64,
     map894: Option<Vec<u8>>,
+    mat: Option<NyuMat>,
 }
 
 fn png_stems(dir: &Path) -> Result<Vec<String>> {
@@ -118,27 +133,53 @@ fn parse_894_to_40(text: &str, path: &Path) -> Result<Vec<u8>> {
 }
 
 impl NyuDataset {
-    /// Opens a dataset folder, optionally restricted to the samples of a split list.
+    /// Opens a dataset folder or `.mat` file, optionally restricted to the samples of a
+    /// split list.
     pub fn open(root: impl AsRef<Path>, split: Option<&Path>) -> Result<Self> {
         let root = root.as_ref().to_path_buf();
-        if !root.is_dir() {
-            return Err(Error::invalid(&root, "dataset folder does not exist"));
-        }
-        let mut samples = if root.join("rgb").is_dir() && root.join("labels").is_dir() {
-            Self::folder_layout(&root)?
+        let mat = if root.is_file() {
+            Some(NyuMat::open(&root)?)
+        } else if root.is_dir() {
+            None
         } else {
-            Self::flat_layout(&root)?
+            return Err(Error::invalid(&root, "no such dataset folder or .mat file"));
+        };
+        let mut samples = match &mat {
+            Some(m) => (0..m.len())
+                .map(|i| NyuSample {
+                    id: NyuMat::id(i),
+                    source: SampleSource::Mat(i),
+                })
+                .collect(),
+            None if root.join("rgb").is_dir() && root.join("labels").is_dir() => {
+                Self::folder_layout(&root)?
+            }
+            None => Self::flat_layout(&root)?,
         };
         if samples.is_empty() {
             return Err(Error::invalid(
                 &root,
-                "no samples found: expected rgb/ + labels/ folders, or <id>_rgb.png + <id>_seg40.png files",
+                match mat {
+                    Some(_) => "the file holds no image",
+                    None => {
+                        "no samples found: expected rgb/ + labels/ folders, or <id>_rgb.png + <id>_seg40.png files"
+                    }
+                },
             ));
         }
         if let Some(split) = split {
             samples = Self::apply_split(samples, split)?;
         }
-        let map894 = if samples.iter().any(|s| s.labels_894) {
+        let needs_map = |s: &NyuSample| {
+            matches!(
+                s.source,
+                SampleSource::Png {
+                    labels_894: true,
+                    ..
+                }
+            )
+        };
+        let map894 = if samples.iter().any(needs_map) {
             let candidates = [
                 root.join("nyu894_to_nyu40.csv"),
                 PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -159,6 +200,7 @@ impl NyuDataset {
             samples,
             depth_scale: 5000.0,
             map894,
+            mat,
         })
     }
 
@@ -171,10 +213,12 @@ impl NyuDataset {
             }
             let depth = root.join("depth").join(format!("{id}.png"));
             out.push(NyuSample {
-                rgb: root.join("rgb").join(format!("{id}.png")),
-                depth: depth.is_file().then_some(depth),
-                labels,
-                labels_894: false,
+                source: SampleSource::Png {
+                    rgb: root.join("rgb").join(format!("{id}.png")),
+                    depth: depth.is_file().then_some(depth),
+                    labels,
+                    labels_894: false,
+                },
                 id,
             });
         }
@@ -205,10 +249,12 @@ impl NyuDataset {
             let depth = has(&format!("{id}_depth")).then(|| root.join(format!("{id}_depth.png")));
             out.push(NyuSample {
                 id,
-                rgb,
-                depth,
-                labels: root.join(format!("{labels}.png")),
-                labels_894,
+                source: SampleSource::Png {
+                    rgb,
+                    depth,
+                    labels: root.join(format!("{labels}.png")),
+                    labels_894,
+                },
             });
         }
         Ok(out)
@@ -252,16 +298,45 @@ impl NyuDataset {
     /// Loads sample `index`, checking sizes and label values.
     pub fn load(&self, index: usize) -> Result<NyuItem> {
         let s = self.samples.get(index).ok_or_else(|| {
-            Error::msg(format!(
-                "sample {index} out of range ({} samples)",
-                self.samples.len()
-            ))
+            Error::invalid(
+                &self.root,
+                format!(
+                    "sample {index} out of range ({} samples)",
+                    self.samples.len()
+                ),
+            )
         })?;
-        let rgb = crate::imageio::read_rgb(&s.rgb)?;
-        let mut labels = LabelImage::read_png(&s.labels)?;
+        match (&s.source, &self.mat) {
+            (SampleSource::Mat(i), Some(mat)) => mat.load(*i),
+            (SampleSource::Mat(_), None) => Err(Error::invalid(
+                &self.root,
+                format!("sample {} is a .mat image but this is a folder", s.id),
+            )),
+            (
+                SampleSource::Png {
+                    rgb,
+                    depth,
+                    labels,
+                    labels_894,
+                },
+                _,
+            ) => self.load_png(&s.id, rgb, depth.as_deref(), labels, *labels_894),
+        }
+    }
+
+    fn load_png(
+        &self,
+        id: &str,
+        rgb_path: &Path,
+        depth_path: Option<&Path>,
+        labels_path: &Path,
+        labels_894: bool,
+    ) -> Result<NyuItem> {
+        let rgb = crate::imageio::read_rgb(rgb_path)?;
+        let mut labels = LabelImage::read_png(labels_path)?;
         if (labels.width, labels.height) != rgb.dimensions() {
             return Err(Error::invalid(
-                &s.labels,
+                labels_path,
                 format!(
                     "label image is {}x{} but its RGB image is {}x{}",
                     labels.width,
@@ -271,15 +346,15 @@ impl NyuDataset {
                 ),
             ));
         }
-        if s.labels_894 {
+        if labels_894 {
             let map = self.map894.as_deref().unwrap_or(&[]);
             for v in labels.data.iter_mut() {
                 *v = map.get(*v as usize).copied().unwrap_or(VOID);
             }
         } else {
-            labels.validate(NUM_CLASSES, &s.labels)?;
+            labels.validate(NUM_CLASSES, labels_path)?;
         }
-        let depth = match &s.depth {
+        let depth = match depth_path {
             Some(p) => {
                 let d = DepthImage::read_png(p, self.depth_scale)?;
                 if (d.width, d.height) != rgb.dimensions() {
@@ -299,7 +374,7 @@ impl NyuDataset {
             None => None,
         };
         Ok(NyuItem {
-            id: s.id.clone(),
+            id: id.to_string(),
             rgb,
             depth,
             labels,

@@ -1,5 +1,6 @@
-//! SDFCNN training data: samples from one or more NYUv2-layout folders
-//! ([`crate::dataset::NyuDataset`], e.g. the real NYUv2 labelled set and `synth` output),
+//! SDFCNN training data: samples from one or more NYUv2 datasets
+//! ([`crate::dataset::NyuDataset`]: PNG-layout folders or the official `.mat` file, e.g. the
+//! real NYUv2 labelled set and `synth` output),
 //! decoded and augmented in parallel ([`crate::dataset::augment::augment`]) and stacked into
 //! batches of `[N, 3, H, W]` RGB in `[0, 1]`, `[N, H, W]` labels (255 = void) and
 //! `[N, 1, H, W]` depth in metres (0 = missing).
@@ -19,11 +20,12 @@ use crate::dataset::NyuDataset;
 use crate::dataset::augment::{AugmentConfig, SegDepthSample, augment};
 use crate::error::{Error, Result};
 
-/// One dataset folder of a config's `[data]` section.
+/// One dataset (folder or `.mat` file) of a config's `[data]` section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DataSource {
-    /// NYUv2-layout folder (`rgb/ depth/ labels/`, or the flat `<id>_rgb.png` layout).
+    /// NYUv2-layout folder (`rgb/ depth/ labels/`, or the flat `<id>_rgb.png` layout), or the
+    /// official `nyu_depth_v2_labeled.mat`.
     pub path: PathBuf,
     /// Optional split list (ids or 1-based indices, one a line).
     #[serde(default)]
@@ -44,7 +46,7 @@ impl DataSource {
     }
 }
 
-/// The samples of several dataset folders, concatenated.
+/// The samples of several datasets, concatenated.
 #[derive(Debug, Clone)]
 pub struct SegDepthData {
     sets: Vec<NyuDataset>,
@@ -84,7 +86,7 @@ impl SegDepthData {
         self.index.is_empty()
     }
 
-    /// Name of sample `i` (`folder/id`), for messages.
+    /// Name of sample `i` (`folder/id` or `file.mat/id`), for messages.
     pub fn name(&self, i: usize) -> String {
         match self.index.get(i) {
             Some(&(k, j)) => {
@@ -220,6 +222,31 @@ mod tests {
         let labels = batch.labels.into_data().convert::<i64>();
         let labels = labels.as_slice::<i64>().expect("i64");
         assert!(labels.iter().all(|&l| (0..40).contains(&l) || l == 255));
+    }
+
+    #[test]
+    fn the_official_mat_file_is_a_source() {
+        let src = DataSource {
+            split: Some("datasets/meta/nyuv2/splits_test_1based.txt".into()),
+            ..DataSource::folder("datasets/fixtures/nyuv2_mat/nyu_depth_v2_labeled_fixture.mat")
+        };
+        let data = SegDepthData::open(&[src]).expect("fixture");
+        assert_eq!(data.len(), 654);
+        assert!(
+            data.name(168).ends_with(".mat/000433"),
+            "{}",
+            data.name(168)
+        );
+        let s = data
+            .load_batch(
+                &[168],
+                [24, 32],
+                &AugmentConfig::default(),
+                &mut batch_rng(1, 0, 0),
+            )
+            .expect("loads");
+        assert!(s[0].depth.iter().any(|&d| d > 0.5 && d < 10.0));
+        assert!(s[0].labels.iter().any(|&l| l < 40));
     }
 
     #[test]

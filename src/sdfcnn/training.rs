@@ -1,4 +1,4 @@
-//! SDFCNN trainer (Section V-C): eq. 21 on NYUv2-layout data, SGD with momentum at
+//! SDFCNN trainer (Section V-C): eq. 21 on NYUv2 data, SGD with momentum at
 //! 0.1 then 0.01, per-epoch validation with the paper's metrics (eqs 16-20), atomic
 //! checkpoints and exact `--resume`.
 //!

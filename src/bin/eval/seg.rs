@@ -17,7 +17,7 @@ pub struct SegArgs {
     /// Checkpoint: model.bpk (with config.toml beside it), its folder, or a run folder.
     #[arg(long)]
     checkpoint: PathBuf,
-    /// NYUv2-layout dataset folder.
+    /// NYUv2-layout dataset folder, or the official nyu_depth_v2_labeled.mat.
     #[arg(long)]
     data: PathBuf,
     /// Split list (ids or 1-based indices).

@@ -255,6 +255,11 @@ pub struct MapConfig {
     /// Depths outside `[min_depth, max_depth]` metres are not fused.
     pub min_depth: f64,
     pub max_depth: f64,
+    /// After a correction, each new keyframe also re-fuses at most this many of the
+    /// keyframes that moved most (by more than a voxel) since they were fused, so that
+    /// online fusion stays bounded per keyframe; the final map is re-fused from all final
+    /// poses whatever this is (0: no online re-fusion).
+    pub refuse_per_keyframe: usize,
     /// Write the PLY as ASCII instead of binary little-endian.
     pub ply_ascii: bool,
     /// Side of the top-down picture of the map, pixels.
@@ -268,6 +273,7 @@ impl Default for MapConfig {
             pixel_stride: 2,
             min_depth: 0.1,
             max_depth: 4.0,
+            refuse_per_keyframe: 8,
             ply_ascii: false,
             topdown_size: 1000,
         }

@@ -13,6 +13,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use nalgebra::{Point2, Point3, Vector3};
+use rustc_hash::FxHashMap;
 use std::collections::HashMap;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
@@ -108,7 +109,7 @@ impl RayTable {
 #[derive(Debug, Clone)]
 pub struct SemanticMap {
     pub voxel_size: f64,
-    pub voxels: HashMap<[i32; 3], Voxel>,
+    pub voxels: FxHashMap<[i32; 3], Voxel>,
     rays: Option<RayTable>,
 }
 
@@ -116,7 +117,7 @@ impl SemanticMap {
     pub fn new(voxel_size: f64) -> Self {
         SemanticMap {
             voxel_size,
-            voxels: HashMap::new(),
+            voxels: FxHashMap::default(),
             rays: None,
         }
     }
@@ -158,8 +159,65 @@ impl SemanticMap {
         }
     }
 
-    /// Fuses a keyframe's view at `pose` (its depth multiplied by `depth_scale`).
-    pub fn fuse(&mut self, kf: &KeyFrame, pose: &Pose, camera: &Camera, cfg: &MapConfig) {
+    /// Takes back one observation made by [`Self::insert`] with the same arguments; a voxel
+    /// left without observations is removed.
+    pub fn remove(&mut self, p: &Point3<f64>, rgb: [u8; 3], label: u8) {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return;
+        }
+        let key = self.key(p);
+        let Some(v) = self.voxels.get_mut(&key) else {
+            return;
+        };
+        if v.count <= 1 {
+            self.voxels.remove(&key);
+            return;
+        }
+        for a in 0..3 {
+            v.sum[a] -= p[a];
+            v.rgb[a] = v.rgb[a].saturating_sub(rgb[a] as u32);
+        }
+        v.count -= 1;
+        match label as usize {
+            l if l < classes::NUM_CLASSES => v.votes[l] = v.votes[l].saturating_sub(1),
+            _ => v.void = v.void.saturating_sub(1),
+        }
+    }
+
+    /// Fuses a keyframe's view at `pose`, its depth multiplied by `depth_scale`.
+    pub fn fuse(
+        &mut self,
+        kf: &KeyFrame,
+        pose: &Pose,
+        depth_scale: f64,
+        camera: &Camera,
+        cfg: &MapConfig,
+    ) {
+        self.integrate(kf, pose, depth_scale, camera, cfg, Self::insert);
+    }
+
+    /// Takes back what [`Self::fuse`] added with the same pose and depth scale (voxel
+    /// de-integration, as BundleFusion re-integrates frames whose poses changed).
+    pub fn unfuse(
+        &mut self,
+        kf: &KeyFrame,
+        pose: &Pose,
+        depth_scale: f64,
+        camera: &Camera,
+        cfg: &MapConfig,
+    ) {
+        self.integrate(kf, pose, depth_scale, camera, cfg, Self::remove);
+    }
+
+    fn integrate(
+        &mut self,
+        kf: &KeyFrame,
+        pose: &Pose,
+        depth_scale: f64,
+        camera: &Camera,
+        cfg: &MapConfig,
+        mut op: impl FnMut(&mut Self, &Point3<f64>, [u8; 3], u8),
+    ) {
         let view = &kf.view;
         let stale = self.rays.as_ref().is_none_or(|r| {
             r.stride != view.stride || (r.width, r.height) != (view.depth.width, view.depth.height)
@@ -172,14 +230,14 @@ impl SemanticMap {
         };
         if (rays.width, rays.height) == (view.depth.width, view.depth.height) {
             for (i, ray) in rays.rays.iter().enumerate() {
-                let d = view.depth.data[i] as f64 * kf.depth_scale;
+                let d = view.depth.data[i] as f64 * depth_scale;
                 if !(d >= cfg.min_depth && d <= cfg.max_depth) || d <= 0.0 {
                     continue;
                 }
                 let p = pose * Point3::new(ray[0] * d, ray[1] * d, d);
                 let (x, y) = (i as u32 % rays.width, i as u32 / rays.width);
                 let c = view.rgb.get_pixel(x, y).0;
-                self.insert(&p, c, view.labels.data[i]);
+                op(self, &p, c, view.labels.data[i]);
             }
         }
         self.rays = Some(rays);
@@ -649,6 +707,45 @@ mod tests {
         assert_eq!(t.points(&LabelVoteConfig::default())[0].label, 3);
         let h = label_histogram(&pts);
         assert_eq!((h[1], h[7], h[40]), (1, 1, 0));
+    }
+
+    #[test]
+    fn removing_observations_gives_the_map_without_them() {
+        let obs: Vec<(Point3<f64>, [u8; 3], u8)> = (0..200)
+            .map(|i| {
+                let t = i as f64 * 0.013;
+                (
+                    Point3::new(t.sin(), (2.0 * t).cos(), 0.3 * t),
+                    [(i % 256) as u8, (3 * i % 256) as u8, 7],
+                    if i % 9 == 0 {
+                        classes::VOID
+                    } else {
+                        (i % 5) as u8
+                    },
+                )
+            })
+            .collect();
+        let mut all = SemanticMap::new(0.05);
+        let mut kept = SemanticMap::new(0.05);
+        for (k, (p, c, l)) in obs.iter().enumerate() {
+            all.insert(p, *c, *l);
+            if k % 3 != 0 {
+                kept.insert(p, *c, *l);
+            }
+        }
+        for (p, c, l) in obs.iter().step_by(3) {
+            all.remove(p, *c, *l);
+        }
+        let rules = LabelVoteConfig::default();
+        let (a, b) = (all.points(&rules), kept.points(&rules));
+        assert_eq!(a.len(), b.len(), "emptied voxels are removed");
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!((x.rgb, x.label), (y.rgb, y.label));
+            assert!((x.position - y.position).norm() < 1e-5);
+        }
+        // Taking back an observation that was never made changes nothing.
+        all.remove(&Point3::new(50.0, 50.0, 50.0), [1, 2, 3], 4);
+        assert_eq!(all.len(), b.len());
     }
 
     #[test]

@@ -221,7 +221,10 @@ pub struct MapperInput {
 }
 
 /// The mapping stage: semantics of each keyframe, insertion into the map,
-/// fusion into the voxel grid (re-fused when correction moved the poses).
+/// fusion into the voxel grid. Keyframes that correction moved are re-fused a few
+/// at a time (the most moved first: taken out at the pose they were fused with and
+/// fused again at their new one), so the work per keyframe stays bounded; the final
+/// map is re-fused from every final pose.
 pub struct LocalMapper {
     cfg: SlamConfig,
     camera: Camera,
@@ -231,8 +234,8 @@ pub struct LocalMapper {
     log: Log,
     pub semantic_map: SemanticMap,
     fused_epoch: u64,
-    /// The pose each keyframe was fused with.
-    fused_poses: Vec<Pose>,
+    /// The pose and depth scale each keyframe was fused with.
+    fused: Vec<(Pose, f64)>,
     pub failures: Vec<(usize, String)>,
     pub semantics_time: StageTime,
     pub fusion_time: StageTime,
@@ -257,7 +260,7 @@ impl LocalMapper {
             log,
             semantic_map: SemanticMap::new(voxel),
             fused_epoch: 0,
-            fused_poses: Vec::new(),
+            fused: Vec::new(),
             failures: Vec::new(),
             semantics_time: StageTime::default(),
             fusion_time: StageTime::default(),
@@ -327,44 +330,69 @@ impl LocalMapper {
                 depth_scale: 1.0,
             });
         }
-        if self.moved_since_fusion() {
-            self.refuse_all();
-        } else {
+        {
             let m = read(&self.map);
             if let Some(k) = m.keyframes.last() {
                 self.semantic_map
-                    .fuse(k, &k.pose, &self.camera, &self.cfg.map);
-                self.fused_poses.push(k.pose);
+                    .fuse(k, &k.pose, k.depth_scale, &self.camera, &self.cfg.map);
+                self.fused.push((k.pose, k.depth_scale));
             }
         }
+        self.refuse_moved(self.cfg.map.refuse_per_keyframe);
         self.fusion_time.add(t);
         track
     }
 
-    /// Whether correction moved a fused keyframe by more than a voxel (at
-    /// `max_depth` for rotations) since it was fused: only then is the whole
-    /// map re-fused online, which keeps online fusion linear in time.
-    fn moved_since_fusion(&self) -> bool {
-        let m = read(&self.map);
-        if m.epoch == self.fused_epoch {
-            return false;
-        }
+    /// How far a keyframe's fused view lies from where it is now, metres: the
+    /// translation plus the rotation's arc at `max_depth`, and the depth-scale change
+    /// at `max_depth`.
+    fn displacement(&self, k: &KeyFrame, (pose, scale): &(Pose, f64)) -> f64 {
         let reach = self.cfg.map.max_depth;
-        m.keyframes.iter().zip(&self.fused_poses).any(|(k, f)| {
-            let d = f.inverse() * k.pose;
-            d.translation.vector.norm() + d.rotation.angle() * reach > self.cfg.map.voxel_size
-        })
+        let d = pose.inverse() * k.pose;
+        d.translation.vector.norm()
+            + d.rotation.angle() * reach
+            + (k.depth_scale - scale).abs() * reach
+    }
+
+    /// Re-fuses the (at most `limit`) keyframes that correction moved most, by more than a
+    /// voxel, since they were fused.
+    fn refuse_moved(&mut self, limit: usize) {
+        let m = read(&self.map);
+        if m.epoch == self.fused_epoch || limit == 0 {
+            return;
+        }
+        let mut moved: Vec<(f64, usize)> = m
+            .keyframes
+            .iter()
+            .zip(&self.fused)
+            .enumerate()
+            .map(|(i, (k, f))| (self.displacement(k, f), i))
+            .filter(|(d, _)| *d > self.cfg.map.voxel_size)
+            .collect();
+        if moved.len() <= limit {
+            // Everything moved is re-fused now: up to date with this correction.
+            self.fused_epoch = m.epoch;
+        }
+        moved.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for &(_, i) in moved.iter().take(limit) {
+            let (k, (pose, scale)) = (&m.keyframes[i], self.fused[i]);
+            let cfg = &self.cfg.map;
+            self.semantic_map.unfuse(k, &pose, scale, &self.camera, cfg);
+            self.semantic_map
+                .fuse(k, &k.pose, k.depth_scale, &self.camera, cfg);
+            self.fused[i] = (k.pose, k.depth_scale);
+        }
     }
 
     /// Rebuilds the voxel map from every keyframe's current pose and depth scale.
     pub fn refuse_all(&mut self) {
         let m = read(&self.map);
         self.semantic_map.clear();
-        self.fused_poses.clear();
+        self.fused.clear();
         for k in &m.keyframes {
             self.semantic_map
-                .fuse(k, &k.pose, &self.camera, &self.cfg.map);
-            self.fused_poses.push(k.pose);
+                .fuse(k, &k.pose, k.depth_scale, &self.camera, &self.cfg.map);
+            self.fused.push((k.pose, k.depth_scale));
         }
         self.fused_epoch = m.epoch;
     }

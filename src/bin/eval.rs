@@ -111,6 +111,9 @@ struct MatchingArgs {
     /// Refine FPFDCNN keypoints to the image corner within this radius (0: off).
     #[arg(long, default_value_t = 0)]
     subpixel: usize,
+    /// Gaussian smoothing of FPFDCNN's probability map before suppression, pixels (0: off).
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_SMOOTHING)]
+    smoothing: f32,
     /// FPFDCNN non-maximum suppression radius, pixels.
     #[arg(long, default_value_t = 4)]
     nms: usize,
@@ -215,6 +218,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 input_scale: a.fpfdcnn_scale,
                 subpixel_radius: a.subpixel,
                 nms_radius: a.nms,
+                smoothing: a.smoothing,
                 ..Default::default()
             };
             FpfdcnnDetector::load(p, a.backend, cfg)

@@ -19,8 +19,13 @@ use std::path::Path;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectorConfig {
-    /// Minimum keypoint probability.
+    /// Minimum keypoint probability (of the smoothed map when `smoothing` is on).
     pub threshold: f32,
+    /// Standard deviation in pixels of a Gaussian applied to the FP probability map
+    /// before non-maximum suppression (0: off). The per-pixel probabilities inside a
+    /// 16x16 cell are noisy; smoothing keeps the structure that follows the image, so
+    /// the same scene point wins in both images of a pair.
+    pub smoothing: f32,
     /// Non-maximum suppression radius, pixels.
     pub nms_radius: usize,
     /// Keep the `top_k` most probable keypoints (0: all).
@@ -36,10 +41,14 @@ pub struct DetectorConfig {
     pub subpixel_radius: usize,
 }
 
+/// Default [`DetectorConfig::smoothing`].
+pub const DEFAULT_SMOOTHING: f32 = 0.0;
+
 impl Default for DetectorConfig {
     fn default() -> Self {
         DetectorConfig {
             threshold: 0.015,
+            smoothing: DEFAULT_SMOOTHING,
             nms_radius: 4,
             top_k: 500,
             border: 4,
@@ -235,11 +244,20 @@ impl FpfdcnnDetector {
             .try_to_vec::<f32>()
             .map_err(|e| Error::msg(format!("reading FP map: {e:?}")))?;
         // Keypoints inside the original image only.
-        let mut cropped = vec![0.0f32; w * h];
+        let mut cropped = crate::raster::GrayF32::new(w, h);
         for y in 0..h {
-            cropped[y * w..(y + 1) * w].copy_from_slice(&prob[y * wp..y * wp + w]);
+            cropped.data[y * w..(y + 1) * w].copy_from_slice(&prob[y * wp..y * wp + w]);
         }
-        let picks = select_keypoints(&cropped, w, h, &self.config);
+        let sigma = self.config.smoothing;
+        if !(sigma.is_finite() && sigma >= 0.0) {
+            return Err(Error::msg(format!(
+                "detector smoothing {sigma} must be a non-negative number of pixels"
+            )));
+        }
+        if sigma > 0.0 {
+            cropped = cropped.gaussian_blur(sigma);
+        }
+        let picks = select_keypoints(&cropped.data, w, h, &self.config);
         let points: Vec<(usize, usize)> = picks.iter().map(|p| (p.0, p.1)).collect();
         let dim = out.descriptors.dims()[1];
         let mut descriptors = Vec::with_capacity(points.len() * dim);
@@ -290,11 +308,40 @@ mod tests {
             border: 2,
             input_scale: 1.0,
             subpixel_radius: 0,
+            smoothing: 0.0,
         };
         let k = select_keypoints(&p, w, h, &cfg);
         assert_eq!(k, vec![(5, 5, 0.9), (12, 5, 0.7)]);
         let k = select_keypoints(&p, w, h, &DetectorConfig { top_k: 1, ..cfg });
         assert_eq!(k.len(), 1);
+    }
+
+    #[test]
+    fn smoothing_finds_the_centre_of_a_noisy_blob() {
+        use rand::{RngExt, SeedableRng};
+        let (w, h) = (64, 48);
+        let cfg = DetectorConfig {
+            top_k: 1,
+            ..Default::default()
+        };
+        let dist = |p: (usize, usize, f32)| (p.0 as f32 - 37.0).hypot(p.1 as f32 - 21.0);
+        let (mut raw_total, mut smooth_total) = (0.0, 0.0);
+        for seed in 0..10 {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            // A broad blob of probability at (37, 21) under strong per-pixel noise.
+            let mut img = crate::raster::GrayF32::new(w, h);
+            for (i, v) in img.data.iter_mut().enumerate() {
+                let (x, y) = ((i % w) as f32 - 37.0, (i / w) as f32 - 21.0);
+                *v = 0.3 * (-(x * x + y * y) / 200.0).exp() + rng.random_range(0.0..0.4);
+            }
+            raw_total += dist(select_keypoints(&img.data, w, h, &cfg)[0]);
+            smooth_total += dist(select_keypoints(&img.gaussian_blur(4.0).data, w, h, &cfg)[0]);
+        }
+        let (raw, smooth) = (raw_total / 10.0, smooth_total / 10.0);
+        assert!(
+            smooth < 2.0 && raw > 2.0 * smooth,
+            "raw {raw} px, smoothed {smooth} px"
+        );
     }
 
     #[test]

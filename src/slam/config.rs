@@ -34,6 +34,8 @@ pub struct FeatureConfig {
     pub fpfdcnn_threshold: f32,
     /// FPFDCNN: non-maximum suppression radius, pixels.
     pub fpfdcnn_nms_radius: usize,
+    /// FPFDCNN: Gaussian smoothing of the probability map before suppression, pixels (0: off).
+    pub fpfdcnn_smoothing: f32,
     /// FPFDCNN: no keypoint closer than this to the border, pixels.
     pub fpfdcnn_border: usize,
     /// FPFDCNN: image resize factor before the network (0.5 for weights trained at 240x320).
@@ -57,6 +59,7 @@ impl Default for FeatureConfig {
             top_k: 500,
             fpfdcnn_threshold: 0.015,
             fpfdcnn_nms_radius: 4,
+            fpfdcnn_smoothing: crate::fpfdcnn::inference::DEFAULT_SMOOTHING,
             fpfdcnn_border: 4,
             orb_fast_threshold: 20,
             orb_fallback_threshold: 7,
@@ -73,6 +76,7 @@ impl FeatureConfig {
         DetectorConfig {
             threshold: self.fpfdcnn_threshold,
             nms_radius: self.fpfdcnn_nms_radius,
+            smoothing: self.fpfdcnn_smoothing,
             top_k: self.top_k,
             border: self.fpfdcnn_border,
             input_scale: self.fpfdcnn_input_scale,

@@ -42,7 +42,7 @@ pub struct DetectorConfig {
 }
 
 /// Default [`DetectorConfig::smoothing`].
-pub const DEFAULT_SMOOTHING: f32 = 0.0;
+pub const DEFAULT_SMOOTHING: f32 = 2.0;
 
 impl Default for DetectorConfig {
     fn default() -> Self {

@@ -515,6 +515,36 @@ fn rgbd_mode_without_depth_is_an_error_before_processing() {
 }
 
 #[test]
+fn a_sequence_whose_image_folder_is_missing_is_an_error_before_processing() {
+    let dir = tmp_dir("no_depth_folder");
+    std::fs::create_dir_all(dir.join("rgb")).unwrap();
+    for i in 1..=3 {
+        RgbImage::new(64, 48)
+            .save(dir.join(format!("rgb/{i}.0.png")))
+            .unwrap();
+    }
+    let list = |folder: &str| -> String {
+        (1..=3)
+            .map(|i| format!("{i}.0 {folder}/{i}.0.png\n"))
+            .collect()
+    };
+    std::fs::write(dir.join("rgb.txt"), list("rgb")).unwrap();
+    // depth.txt names three depth images, but depth/ was not copied.
+    std::fs::write(dir.join("depth.txt"), list("depth")).unwrap();
+    let s = slam(&dir, box_camera(), config(false), DepthMode::Sensor, false);
+    let e = s.run(quiet()).err().expect("no depth folder").to_string();
+    assert!(
+        e.contains("none of the sequence's 3 depth images exists") && e.contains("depth/1.0.png"),
+        "{e}"
+    );
+    // Nor may every RGB image be missing.
+    std::fs::remove_dir_all(dir.join("rgb")).unwrap();
+    let s = slam(&dir, box_camera(), config(false), DepthMode::Sensor, false);
+    let e = s.validate().unwrap_err().to_string();
+    assert!(e.contains("3 RGB images"), "{e}");
+}
+
+#[test]
 fn orb_baseline_config_is_frame_to_frame_odometry() {
     let seq = box_room();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));

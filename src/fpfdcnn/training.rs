@@ -13,8 +13,8 @@ use super::loss::{
 use super::model::{Fpfdcnn, FpfdcnnConfig};
 use crate::error::{Error, Result};
 use crate::training::{
-    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, epoch_order,
-    non_finite_grads,
+    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite,
+    check_finite_epoch, epoch_order, non_finite_grads,
 };
 use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
@@ -355,6 +355,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         if !val.pairs.is_empty() {
             validate(&model.valid(), &val, &cfg)?.insert("val", &mut values);
         }
+        check_finite_epoch(&model, &values, epoch, &run)?;
         state.epoch = epoch + 1;
         state.history.push(EpochRecord {
             epoch: epoch + 1,

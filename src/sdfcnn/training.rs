@@ -49,7 +49,8 @@ use crate::error::{Error, Result};
 use crate::metrics::{ConfusionMatrix, DepthAccumulator};
 use crate::nn::{resize_bilinear, seeded_init};
 use crate::training::{
-    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, epoch_order,
+    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite,
+    check_finite_epoch, epoch_order,
 };
 
 /// A complete SDFCNN training config (TOML).
@@ -441,6 +442,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             let size = cfg.data.val_size.unwrap_or(cfg.data.size);
             validate(&snapshot, val, size, &cfg, &mut values)?;
         }
+        check_finite_epoch(&snapshot, &values, epoch, &run)?;
         let record = EpochRecord {
             epoch: epoch + 1,
             lr,

@@ -541,7 +541,36 @@ impl Slam {
                 self.semantics.name()
             ))),
             _ => Ok(()),
+        }?;
+        // One missing frame is skipped and counted; a sequence none of whose images exist
+        // (a folder not copied, a wrong root) is an error before anything runs.
+        let n = self
+            .max_frames
+            .map_or(self.sequence.len(), |m| m.min(self.sequence.len()));
+        let frames = &self.sequence.frames[..n];
+        let missing_all = |paths: Vec<&std::path::Path>, what: &str| -> Result<()> {
+            match paths.first() {
+                Some(first) if !paths.iter().any(|p| p.is_file()) => Err(Error::invalid(
+                    first,
+                    format!(
+                        "none of the sequence's {} {what} images exists (this is the first one); is the folder missing?",
+                        paths.len()
+                    ),
+                )),
+                _ => Ok(()),
+            }
+        };
+        missing_all(frames.iter().map(|f| f.rgb_path.as_path()).collect(), "RGB")?;
+        if self.depth == DepthMode::Sensor {
+            missing_all(
+                frames
+                    .iter()
+                    .filter_map(|f| f.depth_path.as_deref())
+                    .collect(),
+                "depth",
+            )?;
         }
+        Ok(())
     }
 
     /// Runs the system over the sequence.

@@ -96,18 +96,79 @@ pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crat
     if loss.is_finite() {
         return Ok(());
     }
-    let kept = match run.latest() {
+    Err(crate::Error::msg(format!(
+        "loss became {loss} at epoch {} batch {batch}: training stopped; {}. Lower the learning rate or check the data.",
+        epoch + 1,
+        kept_checkpoint(run)
+    )))
+}
+
+/// Checks, before an epoch's checkpoint is written, that every weight is finite and that
+/// no validation loss is NaN: the last step of an epoch can leave NaN weights whose loss
+/// no batch has computed yet, and that checkpoint must not replace the last good one.
+pub fn check_finite_epoch<M: burn::module::Module>(
+    module: &M,
+    values: &std::collections::BTreeMap<String, f64>,
+    epoch: usize,
+    run: &RunDir,
+) -> crate::Result<()> {
+    let bad = non_finite_params(module);
+    let bad_values: Vec<&str> = values
+        .iter()
+        .filter(|(_, v)| !v.is_finite())
+        .map(|(k, _)| k.as_str())
+        .collect();
+    if bad.is_empty() && bad_values.is_empty() {
+        return Ok(());
+    }
+    let what = if bad.is_empty() {
+        format!("{} became non-finite", bad_values.join(", "))
+    } else {
+        format!(
+            "{} weight tensors became non-finite (shapes {:?})",
+            bad.len(),
+            &bad[..bad.len().min(3)]
+        )
+    };
+    Err(crate::Error::msg(format!(
+        "after epoch {}: {what}: training stopped without saving this epoch; {}. Lower the learning rate or check the data.",
+        epoch + 1,
+        kept_checkpoint(run)
+    )))
+}
+
+/// Shapes of the trainable parameters holding a NaN or an infinity.
+pub fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>> {
+    struct Check {
+        bad: Vec<Vec<usize>>,
+    }
+    impl burn::module::ModuleVisitor for Check {
+        fn visit_float<const D: usize>(
+            &mut self,
+            param: &burn::module::Param<burn::prelude::Tensor<D>>,
+        ) {
+            let value = param.val();
+            let total = value.clone().sum().into_scalar::<f32>();
+            if !total.is_finite() {
+                self.bad.push(value.dims().to_vec());
+            }
+        }
+    }
+    let mut check = Check { bad: Vec::new() };
+    module.visit(&mut check);
+    check.bad
+}
+
+/// "the last good checkpoint, epoch N, is kept in DIR" (or that there is none yet).
+fn kept_checkpoint(run: &RunDir) -> String {
+    match run.latest() {
         Ok(Some(c)) => format!(
             "the last good checkpoint, epoch {}, is kept in {}",
             c.state.epoch,
             c.dir.display()
         ),
         _ => "no checkpoint had been written yet".to_string(),
-    };
-    Err(crate::Error::msg(format!(
-        "loss became {loss} at epoch {} batch {batch}: training stopped; {kept}. Lower the learning rate or check the data.",
-        epoch + 1
-    )))
+    }
 }
 
 #[cfg(test)]
@@ -122,5 +183,36 @@ mod tests {
         let mut s = a.clone();
         s.sort();
         assert_eq!(s, (0..100).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn an_epoch_with_nan_weights_or_validation_loss_is_refused() {
+        #[allow(deprecated)]
+        let device = burn::prelude::Device::ndarray();
+        let root = std::env::temp_dir().join(format!("sdf_nan_run_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let run = RunDir::prepare(&root, "lr = 0.1\n", false).unwrap();
+        let linear = burn::nn::LinearConfig::new(3, 2).init(&device);
+        let fine = std::collections::BTreeMap::from([("val_loss".to_string(), 1.5)]);
+        assert!(check_finite_epoch(&linear, &fine, 0, &run).is_ok());
+        let nan_val = std::collections::BTreeMap::from([("val_loss".to_string(), f64::NAN)]);
+        let err = check_finite_epoch(&linear, &nan_val, 0, &run)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("val_loss became non-finite"), "{err}");
+        assert!(err.contains("without saving"), "{err}");
+        let broken = burn::nn::Linear {
+            weight: burn::module::Param::from_tensor(
+                burn::prelude::Tensor::<2>::zeros([3, 2], &device).div_scalar(0.0),
+            ),
+            bias: linear.bias.clone(),
+        };
+        let err = check_finite_epoch(&broken, &fine, 4, &run)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("after epoch 5: 1 weight tensors"), "{err}");
+        assert!(err.contains("[3, 2]"), "{err}");
+        assert!(err.contains("no checkpoint had been written yet"), "{err}");
+        let _ = std::fs::remove_dir_all(&root);
     }
 }

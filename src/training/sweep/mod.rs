@@ -55,6 +55,9 @@ pub struct Trainer {
     run: fn(&Path, &str, &RunOptions) -> Result<()>,
     /// Checks that the data a config names can be opened (config text, config path).
     check_data: fn(&str, &Path) -> Result<()>,
+    /// Whether a config (normalised by `parse`) has validation data, which every `val_*`
+    /// metric needs.
+    has_validation: fn(&Value) -> bool,
     /// Every column the trainer writes to `metrics.csv` (besides epoch, lr, seconds).
     pub metrics: &'static [&'static str],
     /// Metrics reported in the results (final and best value).
@@ -84,10 +87,12 @@ const FPFDCNN_METRICS: &[&str] = &[
     "train_loss",
     "train_detector",
     "train_descriptor",
+    "train_localization",
     "train_desc_top1",
     "val_loss",
     "val_detector",
     "val_descriptor",
+    "val_localization",
     "val_desc_top1",
 ];
 
@@ -128,6 +133,12 @@ pub fn trainer(model: &str) -> Option<Trainer> {
             parse: |t, p| normalized(&crate::sdfcnn::SdfcnnTrainConfig::parse(t, p)?, p),
             run: crate::sdfcnn::training::run,
             check_data: sdfcnn_check_data,
+            // `[[data.val]]` sources.
+            has_validation: |cfg| {
+                lookup(cfg, "data.val")
+                    .and_then(Value::as_array)
+                    .is_some_and(|v| !v.is_empty())
+            },
             metrics: SDFCNN_METRICS,
             main: &[
                 "val_miou",
@@ -150,6 +161,12 @@ pub fn trainer(model: &str) -> Option<Trainer> {
             },
             run: crate::fpfdcnn::training::run,
             check_data: fpfdcnn_check_data,
+            // The last `data.val_fraction` of every sequence.
+            has_validation: |cfg| {
+                lookup(cfg, "data.val_fraction")
+                    .and_then(Value::as_float)
+                    .is_some_and(|f| f > 0.0)
+            },
             metrics: FPFDCNN_METRICS,
             main: &[
                 "val_desc_top1",
@@ -733,6 +750,25 @@ impl Sweep {
                 .map(|(f, v)| format!("{f} = {v}"))
                 .collect();
             let normal = check(&t, key, &format!("the point {}", desc.join(", ")))?;
+            if select.metric.starts_with("val_") && !(trainer.has_validation)(&normal) {
+                let point = if desc.is_empty() {
+                    String::new()
+                } else {
+                    format!(" (at the point {})", desc.join(", "))
+                };
+                return Err(err_at(
+                    "select",
+                    format!(
+                        "select.metric = \"{}\" is a validation metric, but the config has no validation data{point}: add {} to the base config or select by a train_* metric",
+                        select.metric,
+                        if trainer.model == "sdfcnn" {
+                            "[[data.val]] sources"
+                        } else {
+                            "data.val_fraction > 0"
+                        }
+                    ),
+                ));
+            }
             let values: Vec<Value> = keys
                 .iter()
                 .map(|k| {

@@ -314,6 +314,24 @@ fn bad_sweeps_are_rejected_before_any_run() {
         e.to_string().contains("cannot be opened") && e.to_string().contains("datasets/missing"),
         "{e}"
     );
+    // Selecting by a validation metric when the base has no validation data.
+    let no_val = BASE.replace("val = [{ path = \"datasets/fixtures/nyuv2\" }]\n", "");
+    assert_ne!(no_val, BASE);
+    let e = load(&dir, &no_val, &with("[grid]\n\"loss.lambda\" = [0.2]\n"))
+        .err()
+        .expect("no validation data");
+    let e = e.to_string();
+    assert!(
+        e.contains(":5: ") && e.contains("is a validation metric") && e.contains("[[data.val]]"),
+        "{e}"
+    );
+    // A train_* metric is fine then.
+    load(
+        &dir,
+        &no_val,
+        &with("[grid]\n\"loss.lambda\" = [0.2]\n").replace("val_miou", "train_loss"),
+    )
+    .expect("train metric without validation data");
     std::fs::remove_dir_all(&dir).ok();
 }
 

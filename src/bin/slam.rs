@@ -139,7 +139,7 @@ fn generate_default_sequence(dest: &Path) -> Result<()> {
         "the default sequence {} does not exist yet, generating it (later runs reuse it): one \
          synthetic room (seed {}), {} frames of a {} trajectory at {}x{} with the TUM fr1 \
          camera, sensor and exact depth, NYU40 labels and ground-truth poses; about 1 MB per \
-         frame and a minute on two cores",
+         frame and 20-30 s on two cores",
         dest.display(),
         cfg.seed,
         cfg.frames,

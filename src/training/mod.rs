@@ -66,8 +66,21 @@ pub fn non_finite_grads<M: burn::module::Module>(
     module: &M,
     grads: &burn::optim::GradientsParams,
 ) -> Vec<Vec<usize>> {
+    non_finite(module, Some(grads))
+}
+
+/// Shapes of the trainable parameters holding a NaN or an infinity.
+pub fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>> {
+    non_finite(module, None)
+}
+
+/// Shapes of the parameters whose gradient (with `grads`) or value (without) is not finite.
+fn non_finite<M: burn::module::Module>(
+    module: &M,
+    grads: Option<&burn::optim::GradientsParams>,
+) -> Vec<Vec<usize>> {
     struct Check<'a> {
-        grads: &'a burn::optim::GradientsParams,
+        grads: Option<&'a burn::optim::GradientsParams>,
         bad: Vec<Vec<usize>>,
     }
     impl burn::module::ModuleVisitor for Check<'_> {
@@ -75,11 +88,14 @@ pub fn non_finite_grads<M: burn::module::Module>(
             &mut self,
             param: &burn::module::Param<burn::prelude::Tensor<D>>,
         ) {
-            if let Some(g) = self.grads.get::<D>(param.id) {
-                let total = g.clone().sum().into_scalar::<f32>();
-                if !total.is_finite() {
-                    self.bad.push(g.dims().to_vec());
-                }
+            let tensor = match self.grads {
+                Some(grads) => grads.get::<D>(param.id),
+                None => Some(param.val()),
+            };
+            if let Some(t) = tensor
+                && !t.clone().sum().into_scalar::<f32>().is_finite()
+            {
+                self.bad.push(t.dims().to_vec());
             }
         }
     }
@@ -135,28 +151,6 @@ pub fn check_finite_epoch<M: burn::module::Module>(
         epoch + 1,
         kept_checkpoint(run)
     )))
-}
-
-/// Shapes of the trainable parameters holding a NaN or an infinity.
-pub fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>> {
-    struct Check {
-        bad: Vec<Vec<usize>>,
-    }
-    impl burn::module::ModuleVisitor for Check {
-        fn visit_float<const D: usize>(
-            &mut self,
-            param: &burn::module::Param<burn::prelude::Tensor<D>>,
-        ) {
-            let value = param.val();
-            let total = value.clone().sum().into_scalar::<f32>();
-            if !total.is_finite() {
-                self.bad.push(value.dims().to_vec());
-            }
-        }
-    }
-    let mut check = Check { bad: Vec::new() };
-    module.visit(&mut check);
-    check.bad
 }
 
 /// "the last good checkpoint, epoch N, is kept in DIR" (or that there is none yet).

@@ -196,6 +196,11 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
 fn matching(a: MatchingArgs) -> Result<()> {
     use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown};
     use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
+    anyhow::ensure!(
+        a.ratio > 0.0 && a.ratio.is_finite(),
+        "--ratio must be a positive number (1 turns the test off), got {}",
+        a.ratio
+    );
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::load(&a.camera)?;
     let weights = match (&a.fpfdcnn, a.orb_only) {
@@ -237,11 +242,6 @@ fn matching(a: MatchingArgs) -> Result<()> {
         ..Default::default()
     };
     cfg.range.window = a.window;
-    anyhow::ensure!(
-        a.ratio > 0.0 && a.ratio.is_finite(),
-        "--ratio must be a positive number (1 turns the test off), got {}",
-        a.ratio
-    );
     cfg.range.mutual = !a.no_mutual;
     cfg.range.ratio = (a.ratio < 1.0).then_some(a.ratio);
     cfg.guide = (!a.window_at_keypoint).then(sdf_slam::range_matcher::GuideConfig::default);

@@ -41,6 +41,31 @@ pub struct DetectorConfig {
     pub subpixel_radius: usize,
 }
 
+impl DetectorConfig {
+    /// Checks ranges; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !self.threshold.is_finite() {
+            return Err(format!(
+                "threshold must be a number, got {}",
+                self.threshold
+            ));
+        }
+        if !(self.smoothing.is_finite() && self.smoothing >= 0.0) {
+            return Err(format!(
+                "smoothing must be a non-negative number of pixels (0: off), got {}",
+                self.smoothing
+            ));
+        }
+        if !(self.input_scale > 0.0 && self.input_scale <= 4.0) {
+            return Err(format!(
+                "input_scale must be in (0, 4], got {}",
+                self.input_scale
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Default [`DetectorConfig::smoothing`].
 pub const DEFAULT_SMOOTHING: f32 = 2.0;
 
@@ -148,7 +173,10 @@ pub struct FpfdcnnDetector {
 }
 
 impl FpfdcnnDetector {
+    /// A detector around a model; `config` must pass [`DetectorConfig::validate`]
+    /// ([`Self::load`] checks it).
     pub fn new(model: Fpfdcnn, device: Device, config: DetectorConfig) -> Self {
+        debug_assert!(config.validate().is_ok(), "{config:?}");
         FpfdcnnDetector {
             model,
             device,
@@ -159,6 +187,9 @@ impl FpfdcnnDetector {
     /// Loads a checkpoint (a `model.bpk`, its folder, or a run folder) with the
     /// training config beside it.
     pub fn load(checkpoint: &Path, backend: BackendKind, config: DetectorConfig) -> Result<Self> {
+        config
+            .validate()
+            .map_err(|m| Error::msg(format!("FPFDCNN detector: {m}")))?;
         let (weights, cfg_path) = resolve_checkpoint(checkpoint)?;
         let text = crate::io::read_text(&cfg_path)?;
         let train = FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
@@ -176,11 +207,6 @@ impl FpfdcnnDetector {
     /// keypoint is taken from the padding.
     pub fn detect(&self, gray: &GrayImage) -> Result<Features> {
         let s = self.config.input_scale;
-        if !(s > 0.0 && s <= 4.0) {
-            return Err(Error::msg(format!(
-                "detector input_scale {s} must be in (0, 4]"
-            )));
-        }
         let mut f = if s == 1.0 {
             self.detect_at_native(gray)?
         } else {
@@ -249,11 +275,6 @@ impl FpfdcnnDetector {
             cropped.data[y * w..(y + 1) * w].copy_from_slice(&prob[y * wp..y * wp + w]);
         }
         let sigma = self.config.smoothing;
-        if !(sigma.is_finite() && sigma >= 0.0) {
-            return Err(Error::msg(format!(
-                "detector smoothing {sigma} must be a non-negative number of pixels"
-            )));
-        }
         if sigma > 0.0 {
             cropped = cropped.gaussian_blur(sigma);
         }

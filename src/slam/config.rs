@@ -448,6 +448,11 @@ impl SlamConfig {
         if self.features.top_k == 0 {
             return Err("features.top_k must be at least 1".into());
         }
+        // The FPFDCNN fields, named as in this file.
+        self.features
+            .detector()
+            .validate()
+            .map_err(|m| format!("features.fpfdcnn_{m}"))?;
         pos(self.matcher.window as f64, "matcher.window")?;
         pos(self.matcher.wide_window as f64, "matcher.wide_window")?;
         for (r, name) in [
@@ -545,6 +550,16 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("map.voxel_size"), "{e}");
+        for (field, value) in [
+            ("fpfdcnn_smoothing", "-1.0"),
+            ("fpfdcnn_input_scale", "0.0"),
+        ] {
+            let text = format!("[features]\n{field} = {value}\n");
+            let e = SlamConfig::parse(&text, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("features.{field} must be")), "{e}");
+        }
         let shipped = include_str!("../../configs/slam.toml");
         assert_eq!(
             SlamConfig::parse(shipped, Path::new("configs/slam.toml")).unwrap(),

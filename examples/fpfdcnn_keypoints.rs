@@ -16,14 +16,13 @@
 use anyhow::{Context, Result};
 use burn::prelude::*;
 use clap::Parser;
-use nalgebra::{Point2, Vector2};
+use nalgebra::Vector2;
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::dataset::fp_pairs::transfer;
-use sdf_slam::features::bf_matcher::bf_match;
 use sdf_slam::features::harris::{HarrisConfig, harris_corners};
-use sdf_slam::features::orb::{OrbConfig, detect_and_compute, gray_from_f32};
-use sdf_slam::fpfdcnn::evaluate::{PixelMatches, fpfdcnn_matches};
+use sdf_slam::features::orb::{OrbConfig, gray_from_f32};
+use sdf_slam::fpfdcnn::evaluate::{fpfdcnn_matches, orb_matches};
 use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
 use sdf_slam::metrics::matching::CORRECT_MATCH_PX;
 use sdf_slam::range_matcher::{GuideConfig, RangeMatcherConfig};
@@ -54,19 +53,17 @@ struct Args {
     picture: Option<PathBuf>,
 }
 
-/// The Harris corners FPFDCNN is trained on (`configs/fpfdcnn.toml`'s `[data.targets]`).
-fn targets() -> HarrisConfig {
-    HarrisConfig {
-        relative_threshold: 0.001,
-        nms_radius: 4,
-        border: 8,
-        max_corners: 500,
-        ..HarrisConfig::default()
-    }
+/// The Harris corners the checkpoint was trained on (its config's `[data.targets]`).
+fn targets(checkpoint: &std::path::Path) -> Result<HarrisConfig> {
+    let (_, cfg_path) = sdf_slam::nn::weights::resolve_checkpoint(checkpoint)?;
+    let text = sdf_slam::io::read_text(&cfg_path)?;
+    let cfg = sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
+    Ok(cfg.data.targets)
 }
 
 fn main() -> Result<()> {
     let a = Args::parse();
+    let targets = targets(&a.fpfdcnn)?;
     let seq = TumSequence::open(&a.sequence)?;
     let cam = Camera::load(&a.camera)?;
     let det = FpfdcnnDetector::load(
@@ -89,7 +86,7 @@ fn main() -> Result<()> {
     let mut total = 0usize;
     for i in a.first..seq.len() {
         let gray = seq.load_gray(i)?;
-        let corners = harris_corners(&GrayF32::from_gray(&gray), &targets());
+        let corners = harris_corners(&GrayF32::from_gray(&gray), &targets);
         let f = det.detect(&gray)?;
         for p in &f.points {
             let d = corners
@@ -130,20 +127,7 @@ fn main() -> Result<()> {
         };
         let ga = gray_from_f32(&GrayF32::from_rgb(&fa.rgb));
         let gb = gray_from_f32(&GrayF32::from_rgb(&fb.rgb));
-        let (oa, ob) = (
-            detect_and_compute(&ga, &orb)?,
-            detect_and_compute(&gb, &orb)?,
-        );
-        let orb_matches: PixelMatches = bf_match(&oa.descriptors, &ob.descriptors, true)
-            .iter()
-            .map(|m| {
-                let (p, q) = (oa.keypoints[m.query], ob.keypoints[m.train]);
-                (
-                    Point2::new(p.x as f64, p.y as f64),
-                    Point2::new(q.x as f64, q.y as f64),
-                )
-            })
-            .collect();
+        let (orb_matches, _) = orb_matches(&ga, &gb, &orb)?;
         let fp_matches =
             fpfdcnn_matches(&det.detect(&ga)?, &det.detect(&gb)?, &range, Some(&guide))?;
         for (k, (name, m)) in [("ORB", orb_matches), ("FPFDCNN", fp_matches)]

@@ -148,7 +148,9 @@ impl Acc {
 /// Matches of one method on one image pair: `(pixel in A, pixel in B)`.
 pub type PixelMatches = Vec<(Point2<f64>, Point2<f64>)>;
 
-fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMatches, usize)> {
+/// ORB keypoints of both images matched by cross-checked brute force (Hamming), and the
+/// number of keypoints found in the two.
+pub fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMatches, usize)> {
     let fa = detect_and_compute(a, cfg)?;
     let fb = detect_and_compute(b, cfg)?;
     let m = bf_match(&fa.descriptors, &fb.descriptors, true)

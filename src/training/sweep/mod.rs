@@ -58,6 +58,8 @@ pub struct Trainer {
     /// Whether a config (normalised by `parse`) has validation data, which every `val_*`
     /// metric needs.
     has_validation: fn(&Value) -> bool,
+    /// What to add to a config that has none.
+    validation_hint: &'static str,
     /// Every column the trainer writes to `metrics.csv` (besides epoch, lr, seconds).
     pub metrics: &'static [&'static str],
     /// Metrics reported in the results (final and best value).
@@ -139,6 +141,7 @@ pub fn trainer(model: &str) -> Option<Trainer> {
                     .and_then(Value::as_array)
                     .is_some_and(|v| !v.is_empty())
             },
+            validation_hint: "[[data.val]] sources",
             metrics: SDFCNN_METRICS,
             main: &[
                 "val_miou",
@@ -167,6 +170,7 @@ pub fn trainer(model: &str) -> Option<Trainer> {
                     .and_then(Value::as_float)
                     .is_some_and(|f| f > 0.0)
             },
+            validation_hint: "data.val_fraction > 0",
             metrics: FPFDCNN_METRICS,
             main: &[
                 "val_desc_top1",
@@ -760,12 +764,7 @@ impl Sweep {
                     "select",
                     format!(
                         "select.metric = \"{}\" is a validation metric, but the config has no validation data{point}: add {} to the base config or select by a train_* metric",
-                        select.metric,
-                        if trainer.model == "sdfcnn" {
-                            "[[data.val]] sources"
-                        } else {
-                            "data.val_fraction > 0"
-                        }
+                        select.metric, trainer.validation_hint
                     ),
                 ));
             }

@@ -130,3 +130,42 @@ fn the_894_to_40_table_maps_known_classes() {
     assert_eq!(map[3], 2); // cabinet -> cabinet
     assert_eq!(map[4], 21); // ceiling -> ceiling
 }
+
+/// 894-class labels need 16 bits (ids up to 894): `<id>_seg894.png` is read as 8- or 16-bit
+/// greyscale and mapped to 40 classes; an id the table lacks is an error naming the pixel.
+#[test]
+fn sixteen_bit_894_class_labels_are_mapped_to_40() {
+    let d = tmp("seg894");
+    let src = Path::new(NYU);
+    std::fs::copy(src.join("000433_rgb.png"), d.join("000001_rgb.png")).unwrap();
+    std::fs::copy(src.join("000433_depth.png"), d.join("000001_depth.png")).unwrap();
+    let map = sdf_slam::dataset::nyu::default_894_to_40();
+    let (w, h) = (640u32, 480u32);
+    // Every id of the table in turn, including ones above 255.
+    let ids: Vec<u16> = (0..w * h).map(|k| (k % 895) as u16).collect();
+    let save = |ids: &[u16]| {
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, ids.to_vec())
+            .unwrap()
+            .save(d.join("000001_seg894.png"))
+            .unwrap()
+    };
+    save(&ids);
+    let ds = NyuDataset::open(&d, None).unwrap();
+    let labels = ds.load(0).unwrap().labels;
+    assert!(
+        map[300] != 255 || map[800] != 255,
+        "the test needs ids above 255 that map"
+    );
+    for (k, &id) in ids.iter().enumerate() {
+        assert_eq!(labels.data[k], map[id as usize], "pixel {k}, id {id}");
+    }
+    // An id beyond the table.
+    let mut bad = ids.clone();
+    bad[3 * 640 + 2] = 2000;
+    save(&bad);
+    let e = ds.load(0).unwrap_err().to_string();
+    assert!(
+        e.contains("000001_seg894.png") && e.contains("label 2000 at pixel (2, 3)"),
+        "{e}"
+    );
+}

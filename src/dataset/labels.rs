@@ -66,6 +66,46 @@ impl LabelImage {
         })
     }
 
+    /// Reads a greyscale PNG of class ids, 8- or 16-bit (894-class labels need 16 bits):
+    /// `(width, height, ids)` row-major.
+    pub fn read_png_ids(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<u16>)> {
+        let path = path.as_ref();
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let decoder = png::Decoder::new(std::io::BufReader::new(file));
+        let bad =
+            |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
+        let mut reader = decoder.read_info().map_err(bad)?;
+        let size = reader
+            .output_buffer_size()
+            .ok_or_else(|| Error::invalid(path, "label image too large"))?;
+        let mut buf = vec![0u8; size];
+        let info = reader.next_frame(&mut buf).map_err(bad)?;
+        use png::{BitDepth, ColorType};
+        let (w, h) = (info.width as usize, info.height as usize);
+        let rows = buf.chunks(info.line_size).take(h);
+        let ids: Vec<u16> = match (info.color_type, info.bit_depth) {
+            (ColorType::Grayscale, BitDepth::Eight) => rows
+                .flat_map(|r| r[..w].iter().map(|&v| v as u16))
+                .collect(),
+            (ColorType::Grayscale, BitDepth::Sixteen) => rows
+                .flat_map(|r| {
+                    r[..2 * w]
+                        .chunks_exact(2)
+                        .map(|b| u16::from_be_bytes([b[0], b[1]]))
+                })
+                .collect(),
+            (c, b) => {
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "class-id images must be 8- or 16-bit greyscale PNG, found {c:?} {b:?}"
+                    ),
+                ));
+            }
+        };
+        Ok((info.width, info.height, ids))
+    }
+
     /// Checks that every value is a class below `num_classes` or [`VOID`].
     pub fn validate(&self, num_classes: usize, path: &Path) -> Result<()> {
         match self

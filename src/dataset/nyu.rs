@@ -132,6 +132,28 @@ fn parse_894_to_40(text: &str, path: &Path) -> Result<Vec<u8>> {
     Ok(map)
 }
 
+/// Maps 894-class ids (row-major, `width` pixels a row) to 40-class indices with `map`
+/// ([`read_894_to_40`]); an id the table does not have is an error naming the pixel.
+pub fn map_894_to_40(
+    ids: &[u16],
+    width: usize,
+    map: &[u8],
+) -> std::result::Result<Vec<u8>, String> {
+    ids.iter()
+        .enumerate()
+        .map(|(k, &v)| {
+            map.get(v as usize).copied().ok_or_else(|| {
+                format!(
+                    "label {v} at pixel ({}, {}) is not an 894-class id (0-{})",
+                    k % width.max(1),
+                    k / width.max(1),
+                    map.len().saturating_sub(1)
+                )
+            })
+        })
+        .collect()
+}
+
 impl NyuDataset {
     /// Opens a dataset folder or `.mat` file, optionally restricted to the samples of a
     /// split list.
@@ -333,7 +355,21 @@ impl NyuDataset {
         labels_894: bool,
     ) -> Result<NyuItem> {
         let rgb = crate::imageio::read_rgb(rgb_path)?;
-        let mut labels = LabelImage::read_png(labels_path)?;
+        let labels = if labels_894 {
+            let (width, height, ids) = LabelImage::read_png_ids(labels_path)?;
+            let map = self.map894.as_deref().unwrap_or(&[]);
+            let data = map_894_to_40(&ids, width as usize, map)
+                .map_err(|m| Error::invalid(labels_path, m))?;
+            LabelImage {
+                width,
+                height,
+                data,
+            }
+        } else {
+            let labels = LabelImage::read_png(labels_path)?;
+            labels.validate(NUM_CLASSES, labels_path)?;
+            labels
+        };
         if (labels.width, labels.height) != rgb.dimensions() {
             return Err(Error::invalid(
                 labels_path,
@@ -345,14 +381,6 @@ impl NyuDataset {
                     rgb.height()
                 ),
             ));
-        }
-        if labels_894 {
-            let map = self.map894.as_deref().unwrap_or(&[]);
-            for v in labels.data.iter_mut() {
-                *v = map.get(*v as usize).copied().unwrap_or(VOID);
-            }
-        } else {
-            labels.validate(NUM_CLASSES, labels_path)?;
         }
         let depth = match depth_path {
             Some(p) => {

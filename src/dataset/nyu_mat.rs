@@ -174,21 +174,8 @@ impl NyuMat {
 
         let ids = check(self.labels.read_u16_rows(row, 1), n).map_err(|m| bad("labels", m))?;
         let ids = to_row_major(&ids, w, h);
-        let mut labels = Vec::with_capacity(n);
-        for (k, &v) in ids.iter().enumerate() {
-            let class = self.map894.get(v as usize).copied().ok_or_else(|| {
-                bad(
-                    "labels",
-                    format!(
-                        "label {v} at pixel ({}, {}) is not an 894-class id (0-{})",
-                        k % w,
-                        k / w,
-                        self.map894.len() - 1
-                    ),
-                )
-            })?;
-            labels.push(class);
-        }
+        let labels =
+            super::nyu::map_894_to_40(&ids, w, &self.map894).map_err(|m| bad("labels", m))?;
 
         Ok(NyuItem {
             id,

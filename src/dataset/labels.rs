@@ -32,16 +32,7 @@ impl LabelImage {
     /// Reads the raw indices of an 8-bit greyscale or palette PNG.
     pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let decoder = png::Decoder::new(std::io::BufReader::new(file));
-        let bad =
-            |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
-        let mut reader = decoder.read_info().map_err(bad)?;
-        let size = reader
-            .output_buffer_size()
-            .ok_or_else(|| Error::invalid(path, "label image too large"))?;
-        let mut buf = vec![0u8; size];
-        let info = reader.next_frame(&mut buf).map_err(bad)?;
+        let (info, buf) = decode_png(path)?;
         use png::{BitDepth, ColorType};
         match (info.color_type, info.bit_depth) {
             (ColorType::Grayscale | ColorType::Indexed, BitDepth::Eight) => {}
@@ -70,16 +61,7 @@ impl LabelImage {
     /// `(width, height, ids)` row-major.
     pub fn read_png_ids(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<u16>)> {
         let path = path.as_ref();
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let decoder = png::Decoder::new(std::io::BufReader::new(file));
-        let bad =
-            |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
-        let mut reader = decoder.read_info().map_err(bad)?;
-        let size = reader
-            .output_buffer_size()
-            .ok_or_else(|| Error::invalid(path, "label image too large"))?;
-        let mut buf = vec![0u8; size];
-        let info = reader.next_frame(&mut buf).map_err(bad)?;
+        let (info, buf) = decode_png(path)?;
         use png::{BitDepth, ColorType};
         let (w, h) = (info.width as usize, info.height as usize);
         let rows = buf.chunks(info.line_size).take(h);
@@ -133,4 +115,18 @@ impl LabelImage {
             .ok_or_else(|| Error::msg("label buffer size does not match its dimensions"))?;
         crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageLuma8(img))
     }
+}
+
+/// Decodes a PNG as stored (no expansion): its header and raw rows.
+fn decode_png(path: &Path) -> Result<(png::OutputInfo, Vec<u8>)> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let decoder = png::Decoder::new(std::io::BufReader::new(file));
+    let bad = |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
+    let mut reader = decoder.read_info().map_err(bad)?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| Error::invalid(path, "label image too large"))?;
+    let mut buf = vec![0u8; size];
+    let info = reader.next_frame(&mut buf).map_err(bad)?;
+    Ok((info, buf))
 }

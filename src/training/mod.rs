@@ -119,8 +119,8 @@ pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crat
     )))
 }
 
-/// Checks, before an epoch's checkpoint is written, that every weight is finite and that
-/// no validation loss is NaN: the last step of an epoch can leave NaN weights whose loss
+/// Checks, before an epoch's checkpoint is written, that every weight and every epoch
+/// metric (training and validation) is finite: the last step of an epoch can leave NaN weights whose loss
 /// no batch has computed yet, and that checkpoint must not replace the last good one.
 pub fn check_finite_epoch<M: burn::module::Module>(
     module: &M,

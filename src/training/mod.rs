@@ -120,8 +120,9 @@ pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crat
 }
 
 /// Checks, before an epoch's checkpoint is written, that every weight and every epoch
-/// metric (training and validation) is finite: the last step of an epoch can leave NaN weights whose loss
-/// no batch has computed yet, and that checkpoint must not replace the last good one.
+/// metric (training and validation) is finite: the last step of an epoch can leave NaN
+/// weights whose loss no batch has computed yet, and that checkpoint must not replace the
+/// last good one.
 pub fn check_finite_epoch<M: burn::module::Module>(
     module: &M,
     values: &std::collections::BTreeMap<String, f64>,

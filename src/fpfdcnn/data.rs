@@ -32,10 +32,18 @@ pub struct SequenceSource {
     /// Camera preset (`fr1`, `fr2`, `fr3`) or camera TOML file.
     #[serde(default = "default_camera")]
     pub camera: String,
+    /// How many times this sequence's pairs enter the training and validation pools
+    /// (weights a small real sequence against larger synthetic ones; frames load once).
+    #[serde(default = "default_repeat")]
+    pub repeat: usize,
 }
 
 fn default_camera() -> String {
     "fr1".into()
+}
+
+fn default_repeat() -> usize {
+    1
 }
 
 /// The `[data]` table of a FPFDCNN training config.
@@ -184,6 +192,9 @@ impl FpDataset {
         };
         let mut val = train.clone();
         for src in &cfg.sequences {
+            if src.repeat == 0 {
+                return Err(Error::invalid(&src.path, "repeat must be at least 1"));
+            }
             let seq = TumSequence::open(&src.path)?;
             let camera = Camera::load(&src.camera)?;
             if !seq.has_depth() || seq.groundtruth.is_none() {
@@ -208,6 +219,7 @@ impl FpDataset {
             // Frames at the training resolution, with their Harris targets.
             let offset_train = train.frames.len();
             let offset_val = val.frames.len();
+            let (first_train_pair, first_val_pair) = (train.pairs.len(), val.pairs.len());
             let loaded: Vec<Result<FrameEntry>> = (0..n)
                 .into_par_iter()
                 .map(|i| {
@@ -270,6 +282,14 @@ impl FpDataset {
                         matches,
                     });
                 }
+            }
+            let (train_block, val_block) = (
+                first_train_pair..train.pairs.len(),
+                first_val_pair..val.pairs.len(),
+            );
+            for _ in 1..src.repeat {
+                train.pairs.extend_from_within(train_block.clone());
+                val.pairs.extend_from_within(val_block.clone());
             }
         }
         if train.pairs.is_empty() {
@@ -468,6 +488,46 @@ mod tests {
             assert!(ta.iter().all(|v| *v == 0.0 || *v == 1.0));
         }
         assert!(seen > 20 * 4, "crops are drawn around matches ({seen})");
+    }
+
+    #[test]
+    fn repeat_weights_a_sequence_without_loading_it_twice() {
+        let path =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let build = |repeat: usize| {
+            let cfg = FpDataConfig {
+                sequences: vec![SequenceSource {
+                    path: path.clone(),
+                    camera: "fr1".into(),
+                    repeat,
+                }],
+                sampling: Sampling::Resize,
+                val_fraction: 0.5,
+                ..Default::default()
+            };
+            FpDataset::build(&cfg, [120, 160], |_| {})
+        };
+        let (once, val_once) = build(1).unwrap();
+        let (thrice, val_thrice) = build(3).unwrap();
+        assert!(
+            !once.pairs.is_empty() && !val_once.pairs.is_empty(),
+            "{} training, {} validation pairs",
+            once.pairs.len(),
+            val_once.pairs.len()
+        );
+        assert_eq!(thrice.frames.len(), once.frames.len());
+        assert_eq!(thrice.pairs.len(), 3 * once.pairs.len());
+        assert_eq!(val_thrice.pairs.len(), 3 * val_once.pairs.len());
+        let n = once.pairs.len();
+        assert_eq!(
+            (thrice.pairs[2 * n].a, thrice.pairs[2 * n].b),
+            (once.pairs[0].a, once.pairs[0].b)
+        );
+        let err = build(0).err().unwrap().to_string();
+        assert!(
+            err.contains("repeat must be at least 1") && err.contains("tum_fr1_rpy_head10"),
+            "{err}"
+        );
     }
 
     #[test]

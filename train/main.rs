@@ -5,6 +5,9 @@
 //! training runs (`model = "sweep"`, see `sdf_slam::training::sweep`). `--dry-run` only
 //! checks the config (and lists a sweep's runs).
 //!
+//! `train export CKPT --out DIR` writes half-precision weights (the bundled layout);
+//! `train average CKPT... --out DIR` averages FPFDCNN checkpoints' weights (SWA).
+//!
 //! `train summary fpfdcnn|sdfcnn` runs one forward pass on a zero image and prints each layer's
 //! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
 //! the trainable-parameter count.
@@ -62,6 +65,21 @@ enum Command {
     /// Write a checkpoint's weights in half precision with its config beside them
     /// (`OUT/model.bpk`, `OUT/config.toml`): the layout of the bundled weights.
     Export(ExportArgs),
+    /// Average the weights of several checkpoints of one FPFDCNN run (SWA, Izmailov et al.
+    /// 2018) into a checkpoint folder (`OUT/model.bpk`, `OUT/config.toml`) that `export`,
+    /// `eval --fpfdcnn` and a config's `init` accept.
+    Average(AverageArgs),
+}
+
+#[derive(clap::Args, Debug)]
+struct AverageArgs {
+    /// Checkpoints (folders holding model.bpk and config.toml), e.g.
+    /// runs/fpfdcnn/checkpoints/epoch-00{21..30}.
+    #[arg(required = true, num_args = 2..)]
+    checkpoints: Vec<PathBuf>,
+    /// Output folder.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(clap::Args, Debug)]
@@ -102,6 +120,7 @@ fn main() -> Result<()> {
     match cli.command {
         Some(Command::Summary(args)) => summary(&args),
         Some(Command::Export(args)) => export(&args),
+        Some(Command::Average(args)) => average(&args),
         None => train(cli.run),
     }
 }
@@ -171,6 +190,50 @@ fn export(args: &ExportArgs) -> Result<()> {
         weights.display(),
         target.display(),
         size as f64 / 1e6
+    );
+    Ok(())
+}
+
+/// `train average`: the mean of several FPFDCNN checkpoints' weights, in full precision,
+/// with the first checkpoint's config (a comment lists the checkpoints averaged).
+fn average(args: &AverageArgs) -> Result<()> {
+    use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
+    use sdf_slam::nn::weights::{average_modules, resolve_checkpoint, save_atomic};
+    let mut models = Vec::new();
+    let mut names = Vec::new();
+    let mut first_config = None;
+    for checkpoint in &args.checkpoints {
+        let (weights, config) = resolve_checkpoint(checkpoint)?;
+        let text = sdf_slam::io::read_text(&config)?;
+        if config_model(&text, &config)? != "fpfdcnn" {
+            anyhow::bail!(
+                "{}: only FPFDCNN checkpoints can be averaged (SDFCNN's batch-norm statistics would need recomputing)",
+                config.display()
+            );
+        }
+        let det = FpfdcnnDetector::load(&weights, BackendKind::Flex, Default::default())?;
+        models.push(det.model);
+        names.push(weights.display().to_string());
+        first_config.get_or_insert(text);
+    }
+    let mean = average_modules(models, &names)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let target = args.out.join("model.bpk");
+    save_atomic(mean, &target)?;
+    let mut text = format!(
+        "# Weights averaged (train average) over {} checkpoints:\n",
+        names.len()
+    );
+    for n in &names {
+        text.push_str(&format!("#   {n}\n"));
+    }
+    text.push_str(&first_config.unwrap_or_default());
+    sdf_slam::io::write_atomic(args.out.join("config.toml"), text.as_bytes())?;
+    println!(
+        "mean of {} checkpoints -> {} and config.toml",
+        names.len(),
+        target.display()
     );
     Ok(())
 }

@@ -73,6 +73,10 @@ pub struct FpfdcnnTrainConfig {
     /// of a random initialisation; the optimizer starts afresh. Ignored by `--resume`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init: Option<PathBuf>,
+    /// How many epoch checkpoints to keep, the newest ones (0: all, e.g. to average the
+    /// last epochs' weights with `train average`).
+    #[serde(default = "default_keep")]
+    pub keep_checkpoints: usize,
 }
 
 fn default_out() -> PathBuf {
@@ -98,6 +102,9 @@ fn default_clip() -> f64 {
 }
 fn default_dim() -> usize {
     256
+}
+fn default_keep() -> usize {
+    3
 }
 
 impl FpfdcnnTrainConfig {
@@ -218,7 +225,8 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         cfg.out = o.clone();
     }
     let saved_text = toml::to_string_pretty(&cfg).map_err(|e| Error::msg(e.to_string()))?;
-    let run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
+    let mut run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
+    run.keep = cfg.keep_checkpoints;
     let log = |m: &str| {
         if !opts.quiet {
             eprintln!("{m}")

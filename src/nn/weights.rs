@@ -24,8 +24,14 @@ impl ModuleMapper for ToF16 {
 /// Saves a module with every float parameter in half precision (about half the size),
 /// atomically (temp file + rename; the temp file is removed when saving fails).
 pub fn save_f16<M: Module>(module: M, path: &Path) -> Result<()> {
+    save_atomic(module.map(&mut ToF16), path)
+}
+
+/// Saves a module's weights as they are, atomically (temp file + rename; the temp file is
+/// removed when saving fails).
+pub fn save_atomic<M: Module>(module: M, path: &Path) -> Result<()> {
     let tmp = crate::io::temp_path(path);
-    if let Err(e) = module.map(&mut ToF16).save_file(&tmp) {
+    if let Err(e) = module.save_file(&tmp) {
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::invalid(path, format!("cannot save weights: {e}")));
     }
@@ -85,4 +91,125 @@ pub fn resolve_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
         ));
     }
     Ok((model, config))
+}
+
+/// The element-wise mean of the float parameters of `models`, which must share one
+/// architecture: the weight averaging of SWA (Izmailov et al. 2018, "Averaging Weights
+/// Leads to Wider Optima") over the last checkpoints of a run. `names` label the models
+/// in the error a shape mismatch gives. A network with batch norm would need its running
+/// statistics recomputed on training data after averaging; this function does not do that.
+pub fn average_modules<M: Module>(models: Vec<M>, names: &[String]) -> Result<M> {
+    struct Collect(Vec<(Vec<usize>, Vec<f32>)>);
+    impl burn::module::ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let t = param.val();
+            let dims = t.dims().to_vec();
+            let values = t
+                .into_data()
+                .convert_dtype(DType::F32)
+                .try_into_vec::<f32>()
+                .expect("converted to f32 above");
+            self.0.push((dims, values));
+        }
+    }
+    struct Replace {
+        means: std::vec::IntoIter<Vec<f32>>,
+    }
+    impl ModuleMapper for Replace {
+        fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+            let mean = self
+                .means
+                .next()
+                .expect("one mean per parameter, in visiting order");
+            param.map(|t| {
+                let device = t.device();
+                let data = TensorData::new(mean, t.shape());
+                Tensor::from_data(data, &device)
+            })
+        }
+    }
+    let mut models = models.into_iter();
+    let Some(first) = models.next() else {
+        return Err(Error::msg("nothing to average: no checkpoints given"));
+    };
+    let mut sum = Collect(Vec::new());
+    first.visit(&mut sum);
+    let mut count = 1usize;
+    for (k, model) in models.enumerate() {
+        let mut other = Collect(Vec::new());
+        model.visit(&mut other);
+        let name = names.get(k + 1).map(String::as_str).unwrap_or("?");
+        if other.0.len() != sum.0.len() || other.0.iter().zip(&sum.0).any(|(a, b)| a.0 != b.0) {
+            return Err(Error::msg(format!(
+                "{name}: its parameters do not have the shapes of {}'s, so the two cannot be averaged",
+                names
+                    .first()
+                    .map(String::as_str)
+                    .unwrap_or("the first checkpoint")
+            )));
+        }
+        for ((_, acc), (_, v)) in sum.0.iter_mut().zip(other.0) {
+            for (a, b) in acc.iter_mut().zip(v) {
+                *a += b;
+            }
+        }
+        count += 1;
+    }
+    let means: Vec<Vec<f32>> = sum
+        .0
+        .into_iter()
+        .map(|(_, mut v)| {
+            v.iter_mut().for_each(|x| *x /= count as f32);
+            v
+        })
+        .collect();
+    Ok(first.map(&mut Replace {
+        means: means.into_iter(),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::{Linear, LinearConfig};
+
+    fn linear(weight: [[f32; 2]; 3], bias: [f32; 2]) -> Linear {
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        Linear {
+            weight: Param::from_tensor(Tensor::from_data(weight, &device)),
+            bias: Some(Param::from_tensor(Tensor::from_data(bias, &device))),
+        }
+    }
+
+    #[test]
+    fn averaging_takes_the_mean_of_every_parameter() {
+        let a = linear([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], [1.0, -1.0]);
+        let b = linear([[3.0, 2.0], [1.0, 0.0], [5.0, -6.0]], [2.0, 1.0]);
+        let c = linear([[2.0, 2.0], [2.0, 2.0], [2.0, 0.0]], [0.0, 3.0]);
+        let names = ["a".to_string(), "b".to_string(), "c".to_string()];
+        let mean = average_modules(vec![a, b, c], &names).unwrap();
+        let w = mean.weight.val().into_data().try_into_vec::<f32>().unwrap();
+        assert_eq!(w, vec![2.0, 2.0, 2.0, 2.0, 4.0, 0.0]);
+        let bias = mean
+            .bias
+            .unwrap()
+            .val()
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        assert_eq!(bias, vec![1.0, 1.0]);
+    }
+
+    #[test]
+    fn averaging_different_architectures_is_an_error_naming_them() {
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let a = LinearConfig::new(3, 2).init(&device);
+        let b = LinearConfig::new(2, 3).init(&device);
+        let names = ["runs/a".to_string(), "runs/b".to_string()];
+        let err = average_modules(vec![a, b], &names).unwrap_err().to_string();
+        assert!(err.contains("runs/b") && err.contains("runs/a"), "{err}");
+        assert!(average_modules::<Linear>(vec![], &[]).is_err());
+    }
 }

@@ -49,6 +49,9 @@ struct Args {
     smoothing: f32,
     #[arg(long, default_value_t = 4)]
     nms: usize,
+    /// Cell-grid placements the FP map is averaged over (1, 2 or 4), as `eval matching`.
+    #[arg(long, default_value_t = 4)]
+    grid_shifts: usize,
     #[arg(long)]
     picture: Option<PathBuf>,
 }
@@ -72,6 +75,7 @@ fn main() -> Result<()> {
         DetectorConfig {
             smoothing: a.smoothing,
             nms_radius: a.nms,
+            grid_shifts: a.grid_shifts,
             ..Default::default()
         },
     )?;

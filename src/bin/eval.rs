@@ -117,6 +117,10 @@ struct MatchingArgs {
     /// FPFDCNN non-maximum suppression radius, pixels.
     #[arg(long, default_value_t = 4)]
     nms: usize,
+    /// Average FPFDCNN's probability map over 1, 2 or 4 placements of its 16x16 cell grid
+    /// (half-cell shifts; each placement is one more network pass).
+    #[arg(long, default_value_t = 4)]
+    grid_shifts: usize,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -222,6 +226,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
             let cfg = DetectorConfig {
                 input_scale: a.fpfdcnn_scale,
                 subpixel_radius: a.subpixel,
+                grid_shifts: a.grid_shifts,
                 nms_radius: a.nms,
                 smoothing: a.smoothing,
                 ..Default::default()

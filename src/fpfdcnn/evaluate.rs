@@ -102,6 +102,9 @@ pub struct MatchingReport {
     /// The range matcher's settings, in words.
     #[serde(default)]
     pub range_matcher: String,
+    /// FPFDCNN's keypoint selection, in words (empty without FPFDCNN).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub fpfdcnn_detector: String,
     pub orb_bf: MethodResult,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fpfdcnn_range: Option<MethodResult>,
@@ -360,6 +363,9 @@ pub fn evaluate(
             gap: cfg.gap,
             blur: cfg.blur.map(|d| format!("{d:?}")),
             range_matcher: describe_matcher(cfg),
+            fpfdcnn_detector: detector
+                .map(|d| describe_detector(&d.config))
+                .unwrap_or_default(),
             orb_bf: finish(orb),
             fpfdcnn_range: detector.map(|_| finish(net)),
         },
@@ -412,7 +418,6 @@ fn draw_line(img: &mut RgbImage, a: (f64, f64), b: (f64, f64), c: Rgb<u8>) {
     }
 }
 
-/// The report as markdown tables shaped like the paper's Tables 6 and 7.
 /// The range matcher's settings, e.g. "140 px window centred by a global affine motion
 /// estimate, mutual, ratio 0.9".
 pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
@@ -434,9 +439,37 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
     s
 }
 
+/// FPFDCNN's keypoint selection, e.g. "top 500, NMS 4 px, FP map smoothed 2 px and
+/// averaged over 4 cell-grid placements".
+pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
+    let mut s = format!("top {}, NMS {} px", cfg.top_k, cfg.nms_radius);
+    if cfg.smoothing > 0.0 {
+        s.push_str(&format!(", FP map smoothed {} px", cfg.smoothing));
+    }
+    if cfg.grid_shifts > 1 {
+        s.push_str(&format!(
+            " and averaged over {} cell-grid placements",
+            cfg.grid_shifts
+        ));
+    }
+    if cfg.subpixel_radius > 0 {
+        s.push_str(&format!(
+            ", refined to corners within {} px",
+            cfg.subpixel_radius
+        ));
+    }
+    s
+}
+
+/// The report as markdown tables shaped like the paper's Tables 6 and 7.
 pub fn markdown(r: &MatchingReport) -> String {
+    let detector = if r.fpfdcnn_detector.is_empty() {
+        String::new()
+    } else {
+        format!("; FPFDCNN keypoints: {}", r.fpfdcnn_detector)
+    };
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px |\n|---|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px |\n|---|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,

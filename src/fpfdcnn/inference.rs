@@ -39,6 +39,12 @@ pub struct DetectorConfig {
     /// Refine keypoints to the corner in a window of this radius on the full-resolution
     /// image ([`crate::features::subpix`]); 0: the probability map's pixel.
     pub subpixel_radius: usize,
+    /// Average the FP map over this many placements of the network's 16x16 cell grid
+    /// (1: the image as it is; 2: also shifted by half a cell diagonally; 4: by half a
+    /// cell along x, y and both), each network pass costing as much as the first. The
+    /// detector predicts a cell's 256 sub-pixel probabilities from that cell's features,
+    /// so its map carries the grid; other placements average that out.
+    pub grid_shifts: usize,
 }
 
 impl DetectorConfig {
@@ -54,6 +60,12 @@ impl DetectorConfig {
             return Err(format!(
                 "smoothing must be a non-negative number of pixels (0: off), got {}",
                 self.smoothing
+            ));
+        }
+        if ![1, 2, 4].contains(&self.grid_shifts) {
+            return Err(format!(
+                "grid_shifts must be 1, 2 or 4, got {}",
+                self.grid_shifts
             ));
         }
         if !(self.input_scale > 0.0 && self.input_scale <= 4.0) {
@@ -79,6 +91,7 @@ impl Default for DetectorConfig {
             border: 4,
             input_scale: 1.0,
             subpixel_radius: 0,
+            grid_shifts: 1,
         }
     }
 }
@@ -244,19 +257,28 @@ impl FpfdcnnDetector {
         Ok(f)
     }
 
-    fn detect_at_native(&self, gray: &GrayImage) -> Result<Features> {
+    /// The network on `gray` placed at `(offset, offset)` in a zero image whose sides are
+    /// multiples of the cell: the FP map cropped back to `gray`'s pixels, and the output.
+    fn run_network(
+        &self,
+        gray: &GrayImage,
+        [ox, oy]: [usize; 2],
+    ) -> Result<(
+        crate::raster::GrayF32,
+        super::model::FpfdcnnOutput,
+        [usize; 2],
+    )> {
         let (w, h) = (gray.width() as usize, gray.height() as usize);
-        if w < 16 || h < 16 {
-            return Err(Error::msg(format!(
-                "image {w}x{h} is too small for FPFDCNN (at least 16x16)"
-            )));
-        }
         let cell = self.model.cell();
-        let (wp, hp) = (w.div_ceil(cell) * cell, h.div_ceil(cell) * cell);
+        let (wp, hp) = (
+            (w + ox).div_ceil(cell) * cell,
+            (h + oy).div_ceil(cell) * cell,
+        );
         let mut data = vec![0.0f32; wp * hp];
         for (y, row) in gray.as_raw().chunks_exact(w).enumerate() {
-            for (x, &v) in row.iter().enumerate() {
-                data[y * wp + x] = v as f32 / 255.0;
+            let start = (y + oy) * wp + ox;
+            for (d, &v) in data[start..start + w].iter_mut().zip(row) {
+                *d = v as f32 / 255.0;
             }
         }
         let input = Tensor::<4>::from_data(TensorData::new(data, [1, 1, hp, wp]), &self.device);
@@ -266,14 +288,41 @@ impl FpfdcnnDetector {
             .map_err(|e| Error::msg(e.to_string()))?;
         let prob = out
             .prob
+            .clone()
             .into_data()
             .try_to_vec::<f32>()
             .map_err(|e| Error::msg(format!("reading FP map: {e:?}")))?;
         // Keypoints inside the original image only.
         let mut cropped = crate::raster::GrayF32::new(w, h);
         for y in 0..h {
-            cropped.data[y * w..(y + 1) * w].copy_from_slice(&prob[y * wp..y * wp + w]);
+            let start = (y + oy) * wp + ox;
+            cropped.data[y * w..(y + 1) * w].copy_from_slice(&prob[start..start + w]);
         }
+        Ok((cropped, out, [hp, wp]))
+    }
+
+    fn detect_at_native(&self, gray: &GrayImage) -> Result<Features> {
+        let (w, h) = (gray.width() as usize, gray.height() as usize);
+        if w < 16 || h < 16 {
+            return Err(Error::msg(format!(
+                "image {w}x{h} is too small for FPFDCNN (at least 16x16)"
+            )));
+        }
+        let (mut cropped, out, [hp, wp]) = self.run_network(gray, [0, 0])?;
+        let half = self.model.cell() / 2;
+        let shifts: &[[usize; 2]] = match self.config.grid_shifts {
+            2 => &[[half, half]],
+            4 => &[[half, 0], [0, half], [half, half]],
+            _ => &[],
+        };
+        for &shift in shifts {
+            let (other, _, _) = self.run_network(gray, shift)?;
+            for (a, b) in cropped.data.iter_mut().zip(&other.data) {
+                *a += b;
+            }
+        }
+        let passes = (shifts.len() + 1) as f32;
+        cropped.data.iter_mut().for_each(|p| *p /= passes);
         let sigma = self.config.smoothing;
         if sigma > 0.0 {
             cropped = cropped.gaussian_blur(sigma);
@@ -329,6 +378,7 @@ mod tests {
             border: 2,
             input_scale: 1.0,
             subpixel_radius: 0,
+            grid_shifts: 1,
             smoothing: 0.0,
         };
         let k = select_keypoints(&p, w, h, &cfg);
@@ -395,5 +445,61 @@ mod tests {
             assert!((n - 1.0).abs() < 1e-4);
         }
         assert!(det.detect(&GrayImage::new(8, 8)).is_err());
+    }
+
+    #[test]
+    fn a_shifted_cell_grid_sees_the_image_as_a_padded_copy_would() {
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let model = super::super::FpfdcnnConfig::new()
+            .with_descriptor_dim(8)
+            .init(&device)
+            .unwrap();
+        let det = FpfdcnnDetector::new(model, device, DetectorConfig::default());
+        let (w, h) = (40u32, 30u32);
+        let img = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([((x * 53 + y * 29 + x * y) % 251) as u8])
+        });
+        // The image placed 8 px right and 8 px down in a zero image, run unshifted.
+        let padded = GrayImage::from_fn(w + 8, h + 8, |x, y| {
+            if x >= 8 && y >= 8 {
+                *img.get_pixel(x - 8, y - 8)
+            } else {
+                image::Luma([0])
+            }
+        });
+        let (shifted, _, [hp, wp]) = det.run_network(&img, [8, 8]).unwrap();
+        assert_eq!([hp, wp], [48, 48]);
+        let (reference, _, _) = det.run_network(&padded, [0, 0]).unwrap();
+        for y in 0..h as usize {
+            for x in 0..w as usize {
+                let a = shifted.data[y * w as usize + x];
+                let b = reference.data[(y + 8) * (w as usize + 8) + x + 8];
+                assert!((a - b).abs() < 1e-6, "({x}, {y}): {a} vs {b}");
+            }
+        }
+        // Averaging placements changes the map but keeps every keypoint in the image.
+        let one = det.detect(&img).unwrap();
+        let four = FpfdcnnDetector::new(
+            det.model.clone(),
+            det.device.clone(),
+            DetectorConfig {
+                grid_shifts: 4,
+                ..DetectorConfig::default()
+            },
+        )
+        .detect(&img)
+        .unwrap();
+        assert_ne!(one.scores, four.scores);
+        assert!(
+            four.points
+                .iter()
+                .all(|p| p[0] < w as f32 && p[1] < h as f32)
+        );
+        let bad = DetectorConfig {
+            grid_shifts: 3,
+            ..DetectorConfig::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("grid_shifts"));
     }
 }

@@ -42,6 +42,9 @@ pub struct FeatureConfig {
     pub fpfdcnn_input_scale: f32,
     /// FPFDCNN: refine keypoints to the image corner within this radius, pixels (0: off).
     pub fpfdcnn_subpixel_radius: usize,
+    /// FPFDCNN: average the FP map over 1, 2 or 4 placements of the 16x16 cell grid (each
+    /// a full network pass).
+    pub fpfdcnn_grid_shifts: usize,
     /// ORB: FAST threshold, grey levels.
     pub orb_fast_threshold: u8,
     /// ORB: when fewer than half of `top_k` keypoints are found, detect again
@@ -67,6 +70,7 @@ impl Default for FeatureConfig {
             orb_scale_factor: 1.2,
             fpfdcnn_input_scale: 1.0,
             fpfdcnn_subpixel_radius: 0,
+            fpfdcnn_grid_shifts: 1,
         }
     }
 }
@@ -81,6 +85,7 @@ impl FeatureConfig {
             border: self.fpfdcnn_border,
             input_scale: self.fpfdcnn_input_scale,
             subpixel_radius: self.fpfdcnn_subpixel_radius,
+            grid_shifts: self.fpfdcnn_grid_shifts,
         }
     }
 

@@ -50,7 +50,7 @@ struct Args {
     #[arg(long, default_value_t = 4)]
     nms: usize,
     /// Cell-grid placements the FP map is averaged over (1, 2 or 4), as `eval matching`.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
     #[arg(long)]
     picture: Option<PathBuf>,

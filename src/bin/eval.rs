@@ -119,7 +119,7 @@ struct MatchingArgs {
     nms: usize,
     /// Average FPFDCNN's probability map over 1, 2 or 4 placements of its 16x16 cell grid
     /// (half-cell shifts; each placement is one more network pass).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
     /// Write the figures as JSON.
     #[arg(long)]

@@ -3,7 +3,8 @@
 //! suppression, the top `K` = 500 as in the paper's experiments) and their
 //! L2-normalised 256-d descriptors, sampled from the coarse L10 map exactly as
 //! the bilinear FD layer would give them (FD_FP) without upsampling the whole
-//! 256-channel map.
+//! 256-channel map. By default the probability map is averaged over four placements of
+//! the network's 16x16 cell grid ([`DetectorConfig::grid_shifts`]).
 
 use super::model::Fpfdcnn;
 use super::training::FpfdcnnTrainConfig;
@@ -81,6 +82,10 @@ impl DetectorConfig {
 /// Default [`DetectorConfig::smoothing`].
 pub const DEFAULT_SMOOTHING: f32 = 2.0;
 
+/// Default [`DetectorConfig::grid_shifts`]: four placements, the setting of the README's
+/// Table 6/7 figures (`slam` sets one pass for speed).
+pub const DEFAULT_GRID_SHIFTS: usize = 4;
+
 impl Default for DetectorConfig {
     fn default() -> Self {
         DetectorConfig {
@@ -91,7 +96,7 @@ impl Default for DetectorConfig {
             border: 4,
             input_scale: 1.0,
             subpixel_radius: 0,
-            grid_shifts: 1,
+            grid_shifts: DEFAULT_GRID_SHIFTS,
         }
     }
 }
@@ -455,7 +460,11 @@ mod tests {
             .with_descriptor_dim(8)
             .init(&device)
             .unwrap();
-        let det = FpfdcnnDetector::new(model, device, DetectorConfig::default());
+        let single = DetectorConfig {
+            grid_shifts: 1,
+            ..DetectorConfig::default()
+        };
+        let det = FpfdcnnDetector::new(model, device, single);
         let (w, h) = (40u32, 30u32);
         let img = GrayImage::from_fn(w, h, |x, y| {
             image::Luma([((x * 53 + y * 29 + x * y) % 251) as u8])

@@ -12,6 +12,9 @@
 //!   (λ 0.4, berHu), backward, optimizer update;
 //! * `fpfdcnn-infer`: FPFDCNN forward of one 480×640 grey image and descriptors at 500 keypoints
 //!   (`Fpfdcnn::forward` + `descriptors_at`, Table 12 FD_FP);
+//! * `fpfdcnn-detect`: the whole default detector on one 480×640 grey image (`FpfdcnnDetector::
+//!   detect` with `DetectorConfig::default()`: the FP map averaged over four cell-grid
+//!   placements, so four network passes, smoothing, NMS, top 500, descriptors); no reference;
 //! * `fpfdcnn-train`: one SGD step at batch 4, 240×320 with a stand-in loss (mean of the
 //!   probability map + mean of the descriptors: the FPFDCNN loss is written elsewhere).
 //!
@@ -51,14 +54,16 @@ struct Cli {
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
 enum Case {
     FpfdcnnInfer,
+    FpfdcnnDetect,
     SdfcnnInfer,
     FpfdcnnTrain,
     SdfcnnTrain,
 }
 
 impl Case {
-    const ALL: [Case; 4] = [
+    const ALL: [Case; 5] = [
         Case::FpfdcnnInfer,
+        Case::FpfdcnnDetect,
         Case::SdfcnnInfer,
         Case::FpfdcnnTrain,
         Case::SdfcnnTrain,
@@ -67,19 +72,22 @@ impl Case {
     fn label(self) -> &'static str {
         match self {
             Case::FpfdcnnInfer => "FPFDCNN inference 480x640 + 500 descriptors",
+            Case::FpfdcnnDetect => "FPFDCNN detector 480x640, 4 grid placements, top 500",
             Case::SdfcnnInfer => "SDFCNN inference 640x480",
             Case::FpfdcnnTrain => "FPFDCNN train step, batch 4, 240x320 (stand-in loss)",
             Case::SdfcnnTrain => "SDFCNN train step, batch 4, 240x320 (eq. 21)",
         }
     }
 
-    /// Reference milliseconds: PyTorch CPU, burn-flex, burn-ndarray (None: panicked).
-    fn reference(self) -> (f64, f64, Option<f64>) {
+    /// Reference milliseconds: PyTorch CPU, burn-flex, burn-ndarray (None: panicked); None
+    /// for a case without reference figures.
+    fn reference(self) -> Option<(f64, f64, Option<f64>)> {
         match self {
-            Case::FpfdcnnInfer => (46.0, 171.0, Some(303.0)),
-            Case::SdfcnnInfer => (254.0, 377.0, Some(692.0)),
-            Case::FpfdcnnTrain => (459.0, 1418.0, None),
-            Case::SdfcnnTrain => (1099.0, 3272.0, None),
+            Case::FpfdcnnInfer => Some((46.0, 171.0, Some(303.0))),
+            Case::FpfdcnnDetect => None,
+            Case::SdfcnnInfer => Some((254.0, 377.0, Some(692.0))),
+            Case::FpfdcnnTrain => Some((459.0, 1418.0, None)),
+            Case::SdfcnnTrain => Some((1099.0, 3272.0, None)),
         }
     }
 }
@@ -203,6 +211,20 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
                 Ok(())
             })
         }
+        Case::FpfdcnnDetect => {
+            use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
+            let d = backend.device();
+            let model = FpfdcnnConfig::new().init(&d)?;
+            let detector = FpfdcnnDetector::new(model, d, DetectorConfig::default());
+            let gray = image::GrayImage::from_fn(640, 480, |_, _| {
+                image::Luma([rng.random_range(0..=255u8)])
+            });
+            time(runs, warmup, || {
+                let f = detector.detect(&gray)?;
+                anyhow::ensure!(f.len() == 500, "{} keypoints", f.len());
+                Ok(())
+            })
+        }
         Case::FpfdcnnTrain => {
             let d = backend.autodiff_device();
             let mut model = Some(FpfdcnnConfig::new().init(&d)?);
@@ -271,8 +293,13 @@ fn main() -> Result<()> {
     );
     println!("|---|---|---|---|---|---|---|---|");
     for (case, backend, r) in &results {
-        let (pt, fx, nd) = case.reference();
-        let nd = nd.map_or("panics".to_string(), |v| format!("{v:.0}"));
+        let refs = match case.reference() {
+            Some((pt, fx, nd)) => format!(
+                "{pt:.0} | {fx:.0} | {}",
+                nd.map_or("panics".to_string(), |v| format!("{v:.0}"))
+            ),
+            None => "– | – | –".to_string(),
+        };
         let cells = match r {
             Ok(m) => format!(
                 "{:.0} | {:.0} | {:.0} ({:.0})",
@@ -280,10 +307,7 @@ fn main() -> Result<()> {
             ),
             Err(e) => format!("{e} | | "),
         };
-        println!(
-            "| {} | {pt:.0} | {fx:.0} | {nd} | {backend} | {cells} |",
-            case.label()
-        );
+        println!("| {} | {refs} | {backend} | {cells} |", case.label());
     }
     println!(
         "\nglibc malloc can be tuned without rebuilding, e.g. MALLOC_ARENA_MAX=2 or \

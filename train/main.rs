@@ -74,7 +74,8 @@ enum Command {
 #[derive(clap::Args, Debug)]
 struct AverageArgs {
     /// Checkpoints (folders holding model.bpk and config.toml), e.g.
-    /// runs/fpfdcnn/checkpoints/epoch-00{21..30}.
+    /// runs/fpfdcnn_stage7/checkpoints/epoch-00{11..30} (a run at a constant learning rate
+    /// with `keep_checkpoints = 0`).
     #[arg(required = true, num_args = 2..)]
     checkpoints: Vec<PathBuf>,
     /// Output folder.
@@ -204,6 +205,12 @@ fn average(args: &AverageArgs) -> Result<()> {
     let mut first_config = None;
     for checkpoint in &args.checkpoints {
         let (weights, config) = resolve_checkpoint(checkpoint)?;
+        if names.contains(&weights.display().to_string()) {
+            anyhow::bail!(
+                "{} is given twice: each checkpoint is averaged once",
+                weights.display()
+            );
+        }
         let text = sdf_slam::io::read_text(&config)?;
         if config_model(&text, &config)? != "fpfdcnn" {
             anyhow::bail!(

@@ -439,18 +439,21 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
     s
 }
 
-/// FPFDCNN's keypoint selection, e.g. "top 500, NMS 4 px, FP map smoothed 2 px and
-/// averaged over 4 cell-grid placements".
+/// FPFDCNN's keypoint selection, e.g. "top 500, NMS 4 px, FP map averaged over 4 cell-grid
+/// placements, smoothed 2 px".
 pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
     let mut s = format!("top {}, NMS {} px", cfg.top_k, cfg.nms_radius);
-    if cfg.smoothing > 0.0 {
-        s.push_str(&format!(", FP map smoothed {} px", cfg.smoothing));
+    if cfg.input_scale != 1.0 {
+        s.push_str(&format!(", image resized x{}", cfg.input_scale));
     }
     if cfg.grid_shifts > 1 {
         s.push_str(&format!(
-            " and averaged over {} cell-grid placements",
+            ", FP map averaged over {} cell-grid placements",
             cfg.grid_shifts
         ));
+    }
+    if cfg.smoothing > 0.0 {
+        s.push_str(&format!(", smoothed {} px", cfg.smoothing));
     }
     if cfg.subpixel_radius > 0 {
         s.push_str(&format!(

@@ -20,7 +20,7 @@ use std::path::Path;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectorConfig {
-    /// Minimum keypoint probability (of the smoothed map when `smoothing` is on).
+    /// Minimum keypoint probability (of the map after grid averaging and smoothing).
     pub threshold: f32,
     /// Standard deviation in pixels of a Gaussian applied to the FP probability map
     /// before non-maximum suppression (0: off). The per-pixel probabilities inside a
@@ -106,7 +106,7 @@ impl Default for DetectorConfig {
 pub struct Features {
     /// `(x, y)` pixel positions.
     pub points: Vec<[f32; 2]>,
-    /// FP probabilities.
+    /// FP probabilities at the keypoints (after grid averaging and smoothing).
     pub scores: Vec<f32>,
     /// `N x dim` row-major, L2-normalised.
     pub descriptors: Vec<f32>,
@@ -221,8 +221,8 @@ impl FpfdcnnDetector {
     }
 
     /// Detects and describes keypoints of a grayscale image. Images whose sides
-    /// are not multiples of 16 are zero-padded on the right and bottom; no
-    /// keypoint is taken from the padding.
+    /// are not multiples of 16 are zero-padded on the right and bottom (the shifted
+    /// grid placements also pad left and top); no keypoint is taken from the padding.
     pub fn detect(&self, gray: &GrayImage) -> Result<Features> {
         let s = self.config.input_scale;
         let mut f = if s == 1.0 {
@@ -262,8 +262,9 @@ impl FpfdcnnDetector {
         Ok(f)
     }
 
-    /// The network on `gray` placed at `(offset, offset)` in a zero image whose sides are
-    /// multiples of the cell: the FP map cropped back to `gray`'s pixels, and the output.
+    /// The network on `gray` placed at `(ox, oy)` in a zero image whose sides are multiples
+    /// of the cell: the FP map cropped back to `gray`'s pixels, the network's output, and
+    /// the padded size `[hp, wp]`.
     fn run_network(
         &self,
         gray: &GrayImage,

@@ -112,19 +112,24 @@ pub fn average_modules<M: Module>(models: Vec<M>, names: &[String]) -> Result<M>
             self.0.push((dims, values));
         }
     }
+    /// Puts the means back in visiting order; a parameter whose shape differs from its mean's
+    /// (or a missing mean) is left as it was and recorded, and becomes an error below.
     struct Replace {
-        means: std::vec::IntoIter<Vec<f32>>,
+        means: std::vec::IntoIter<(Vec<usize>, Vec<f32>)>,
+        mismatched: bool,
     }
     impl ModuleMapper for Replace {
         fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-            let mean = self
-                .means
-                .next()
-                .expect("one mean per parameter, in visiting order");
-            param.map(|t| {
-                let device = t.device();
-                let data = TensorData::new(mean, t.shape());
-                Tensor::from_data(data, &device)
+            let next = self.means.next();
+            param.map(|t| match next {
+                Some((dims, mean)) if dims == t.dims() => {
+                    let device = t.device();
+                    Tensor::from_data(TensorData::new(mean, t.shape()), &device)
+                }
+                _ => {
+                    self.mismatched = true;
+                    t
+                }
             })
         }
     }
@@ -155,17 +160,25 @@ pub fn average_modules<M: Module>(models: Vec<M>, names: &[String]) -> Result<M>
         }
         count += 1;
     }
-    let means: Vec<Vec<f32>> = sum
+    let means: Vec<(Vec<usize>, Vec<f32>)> = sum
         .0
         .into_iter()
-        .map(|(_, mut v)| {
+        .map(|(dims, mut v)| {
             v.iter_mut().for_each(|x| *x /= count as f32);
-            v
+            (dims, v)
         })
         .collect();
-    Ok(first.map(&mut Replace {
+    let mut replace = Replace {
         means: means.into_iter(),
-    }))
+        mismatched: false,
+    };
+    let mean = first.map(&mut replace);
+    if replace.mismatched || replace.means.next().is_some() {
+        return Err(Error::msg(
+            "averaging: the module's parameters were not mapped in the order they were read",
+        ));
+    }
+    Ok(mean)
 }
 
 #[cfg(test)]

@@ -88,10 +88,10 @@ impl RunDir {
         let cfg_path = run.root.join("config.toml");
         if resume && cfg_path.is_file() {
             let saved = crate::io::read_text(&cfg_path)?;
-            if strip_epochs(&saved) != strip_epochs(config_toml) {
+            if without_free_settings(&saved) != without_free_settings(config_toml) {
                 return Err(Error::invalid(
                     &cfg_path,
-                    "--resume with a config that differs from the one this run was started with (only the number of epochs may change)",
+                    "--resume with a config that differs from the one this run was started with (only `epochs` and `keep_checkpoints` may change)",
                 ));
             }
         }
@@ -189,9 +189,14 @@ impl RunDir {
 }
 
 /// The config text without its `epochs = ...` line(s), to compare configs on resume.
-fn strip_epochs(toml: &str) -> String {
+/// A config without the settings a resumed run may change: the number of epochs and how
+/// many checkpoints are kept (neither changes what the epochs already run computed).
+fn without_free_settings(toml: &str) -> String {
     toml.lines()
-        .filter(|l| !l.trim_start().starts_with("epochs"))
+        .filter(|l| {
+            let key = l.split('=').next().unwrap_or("").trim();
+            key != "epochs" && key != "keep_checkpoints"
+        })
         .collect::<Vec<_>>()
         .join("\n")
 }
@@ -238,6 +243,9 @@ mod tests {
                 .contains("--resume")
         );
         assert!(RunDir::prepare(&root, "lr = 0.1\nepochs = 9\n", true).is_ok());
+        assert!(
+            RunDir::prepare(&root, "lr = 0.1\nepochs = 9\nkeep_checkpoints = 0\n", true).is_ok()
+        );
         assert!(RunDir::prepare(&root, "lr = 0.2\nepochs = 9\n", true).is_err());
         // A failed weight write leaves the previous checkpoint as the latest.
         let state = TrainState {

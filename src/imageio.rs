@@ -36,6 +36,24 @@ pub fn read_luma8(path: impl AsRef<Path>) -> Result<GrayImage> {
     }
 }
 
+/// Writes a picture atomically as JPEG (quality 85) when `path` ends in `.jpg` or `.jpeg`,
+/// else as PNG.
+pub fn write_picture_atomic(path: impl AsRef<Path>, img: &DynamicImage) -> Result<()> {
+    let path = path.as_ref();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("jpg" | "jpeg")) {
+        return write_png_atomic(path, img);
+    }
+    let mut bytes = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 85)
+        .encode_image(&img.to_rgb8())
+        .map_err(|e| Error::invalid(path, format!("cannot encode JPEG: {e}")))?;
+    crate::io::write_atomic(path, &bytes)
+}
+
 /// Writes an image as PNG, atomically.
 pub fn write_png_atomic(path: impl AsRef<Path>, img: &DynamicImage) -> Result<()> {
     let path = path.as_ref();
@@ -46,4 +64,31 @@ pub fn write_png_atomic(path: impl AsRef<Path>, img: &DynamicImage) -> Result<()
     )
     .map_err(|e| Error::invalid(path, format!("cannot encode PNG: {e}")))?;
     crate::io::write_atomic(path, &bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use image::GenericImageView;
+
+    #[test]
+    fn pictures_are_jpeg_or_png_by_extension() {
+        let dir = std::env::temp_dir().join(format!("sdf_picture_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let img = DynamicImage::ImageRgb8(image::RgbImage::from_fn(32, 16, |x, y| {
+            image::Rgb([(x * 8) as u8, (y * 16) as u8, 128])
+        }));
+        for (name, magic) in [
+            ("a.jpg", &[0xFF, 0xD8][..]),
+            ("b.JPEG", &[0xFF, 0xD8][..]),
+            ("c.png", &[0x89, b'P', b'N', b'G'][..]),
+        ] {
+            let p = dir.join(name);
+            write_picture_atomic(&p, &img).unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            assert!(bytes.starts_with(magic), "{name}");
+            assert_eq!(image::open(&p).unwrap().dimensions(), (32, 16));
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -127,7 +127,8 @@ struct MatchingArgs {
     /// Write the tables as markdown.
     #[arg(long)]
     markdown: Option<PathBuf>,
-    /// Write a picture of the matches on the middle pair (green correct, red wrong).
+    /// Write a picture of the matches on the middle pair (green correct, red wrong); JPEG
+    /// when the name ends in .jpg, else PNG.
     #[arg(long)]
     picture: Option<PathBuf>,
 }
@@ -269,7 +270,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
         write_json(p, &serde_json::to_value(&report)?)?;
     }
     if let (Some(p), Some(img)) = (&a.picture, picture) {
-        sdf_slam::imageio::write_png_atomic(p, &image::DynamicImage::ImageRgb8(img))?;
+        sdf_slam::imageio::write_picture_atomic(p, &image::DynamicImage::ImageRgb8(img))?;
         println!("wrote {}", p.display());
     }
     Ok(())

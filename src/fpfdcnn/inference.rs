@@ -421,17 +421,21 @@ mod tests {
         );
     }
 
-    #[test]
-    fn detect_pads_odd_sizes_and_normalises_descriptors() {
+    /// A randomly initialised FPFDCNN with `dim`-d descriptors on ndarray.
+    fn random_detector(dim: usize, config: DetectorConfig) -> FpfdcnnDetector {
         #[allow(deprecated)]
         let device = Device::ndarray();
         let model = super::super::FpfdcnnConfig::new()
-            .with_descriptor_dim(16)
+            .with_descriptor_dim(dim)
             .init(&device)
             .unwrap();
-        let det = FpfdcnnDetector::new(
-            model,
-            device,
+        FpfdcnnDetector::new(model, device, config)
+    }
+
+    #[test]
+    fn detect_pads_odd_sizes_and_normalises_descriptors() {
+        let det = random_detector(
+            16,
             DetectorConfig {
                 threshold: 0.0,
                 top_k: 20,
@@ -455,17 +459,11 @@ mod tests {
 
     #[test]
     fn a_shifted_cell_grid_sees_the_image_as_a_padded_copy_would() {
-        #[allow(deprecated)]
-        let device = Device::ndarray();
-        let model = super::super::FpfdcnnConfig::new()
-            .with_descriptor_dim(8)
-            .init(&device)
-            .unwrap();
         let single = DetectorConfig {
             grid_shifts: 1,
             ..DetectorConfig::default()
         };
-        let det = FpfdcnnDetector::new(model, device, single);
+        let det = random_detector(8, single);
         let (w, h) = (40u32, 30u32);
         let img = GrayImage::from_fn(w, h, |x, y| {
             image::Luma([((x * 53 + y * 29 + x * y) % 251) as u8])

@@ -188,7 +188,6 @@ impl RunDir {
     }
 }
 
-/// The config text without its `epochs = ...` line(s), to compare configs on resume.
 /// A config without the settings a resumed run may change: the number of epochs and how
 /// many checkpoints are kept (neither changes what the epochs already run computed).
 fn without_free_settings(toml: &str) -> String {

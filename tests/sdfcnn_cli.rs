@@ -88,6 +88,47 @@ fn train_then_eval_seg() {
     for f in ["000433_labels.png", "000433_depth.png", "000464_figure.png"] {
         assert!(pred.join(f).is_file(), "{f}");
     }
+
+    // A TUM-layout sequence: depth only, its camera named, frames selected.
+    let tum = "datasets/fixtures/tum_fr1_rpy_head10";
+    let eval = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_eval"))
+            .args(["seg", "--checkpoint", run.to_str().unwrap(), "--data", tum])
+            .args(["--json", json.to_str().unwrap()])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = eval(&["--camera", "fr1", "--frames", "2", "8", "--every", "2"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("no ground-truth labels"), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["images"], 3);
+    assert!(v["mpa"].is_null() && v["depth"]["rms"].as_f64().unwrap() > 0.0);
+    for (args, want) in [
+        (&[][..], "--camera"),
+        (
+            &["--camera", "fr1", "--frames", "4", "11"][..],
+            "frames 0..10",
+        ),
+        (
+            &["--camera", "configs/cameras/missing.toml"][..],
+            "missing.toml",
+        ),
+    ] {
+        let out = eval(args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(want),
+            "{want}: {stderr}"
+        );
+    }
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -63,6 +63,12 @@ fn missing_sequence_and_monocular_without_sdfcnn_are_errors() {
     );
     assert!(!ok);
     assert!(err.contains("monocular") && err.contains("SDFCNN"), "{err}");
+    let (ok, _, err) = slam(&["--sequence", &fx, "--first", "10"], &dir);
+    assert!(!ok);
+    assert!(
+        err.contains("--first 10") && err.contains("10 frames"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -162,6 +168,8 @@ fn short_run_writes_every_output() {
         &[
             "--sequence",
             &fx,
+            "--first",
+            "3",
             "--max-frames",
             "4",
             "--features",
@@ -174,6 +182,14 @@ fn short_run_writes_every_output() {
         &dir,
     );
     assert!(ok, "{err}");
+    // --first 3: the trajectory starts at the fixture's fourth frame.
+    let traj = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
+    let first = traj
+        .lines()
+        .find(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .unwrap();
+    assert!(first.starts_with("1305031229.6287"), "{first}");
+    assert_eq!(traj.lines().filter(|l| !l.starts_with('#')).count(), 4);
     assert!(
         stdout.contains("ATE") && stdout.contains("keyframes"),
         "{stdout}"

@@ -116,6 +116,10 @@ struct Cli {
     /// Process at most this many frames.
     #[arg(long)]
     max_frames: Option<usize>,
+    /// Start at this frame (0-based, in association order): a segment of a sequence with
+    /// --max-frames, e.g. frames held back from training.
+    #[arg(long, default_value_t = 0)]
+    first: usize,
 }
 
 /// A checkpoint given on the command line, else the bundled one (if present).
@@ -259,7 +263,18 @@ fn main() -> Result<()> {
             }
         },
     };
-    let sequence = TumSequence::open(&sequence_path)?;
+    let mut sequence = TumSequence::open(&sequence_path)?;
+    if cli.first > 0 {
+        if cli.first >= sequence.len() {
+            bail!(
+                "--first {}: {} has {} frames",
+                cli.first,
+                sequence_path.display(),
+                sequence.len()
+            );
+        }
+        sequence.frames.drain(..cli.first);
+    }
     let camera = match &cli.camera {
         Some(spec) => Camera::load(spec)?,
         None if sequence_path.join("camera.toml").is_file() => {
@@ -268,7 +283,7 @@ fn main() -> Result<()> {
         None => Camera::tum_fr1(),
     };
     let semantics: Box<dyn SemanticSource> = match (labels, sdfcnn) {
-        (LabelsArg::Sdfcnn, Some(s)) => Box::new(s),
+        (LabelsArg::Sdfcnn, Some(s)) => Box::new(s.with_camera(&camera)),
         (LabelsArg::Gt, _) => Box::new(GroundTruthSource::open(
             &sequence_path,
             sequence.config.depth_scale,

@@ -2,8 +2,9 @@
 //! (horizontal flip, scale + crop, colour jitter), producing network-ready
 //! planar arrays. Depth and labels are resampled with nearest neighbour so that
 //! no label is blended and missing depth (0) never leaks into valid pixels.
-//! Depth is in metres and is not rescaled with the image: the scene does not
-//! change size when the picture is zoomed, only the field of view does.
+//! Depth stays in metres; the zoom is returned with the sample ([`SegDepthSample::zoom`])
+//! because zooming lengthens the focal length, which SDFCNN's canonical camera
+//! ([`crate::sdfcnn::focal`]) accounts for.
 
 use super::depth::DepthImage;
 use super::labels::{LabelImage, VOID};
@@ -63,6 +64,12 @@ pub struct SegDepthSample {
     pub depth: Vec<f32>,
     /// `[H, W]` class indices, 255 = void.
     pub labels: Vec<u8>,
+    /// Source pixels per output pixel divided into the whole-image scale: the crop is
+    /// `1 / zoom` of the source image's width (1 = the whole image).
+    pub zoom: f32,
+    /// The factor the depth was multiplied by after loading (1 = metres; see
+    /// `crate::sdfcnn::focal`): metres = depth / depth_factor.
+    pub depth_factor: f32,
 }
 
 /// Resamples (and augments) one sample to `width x height`.
@@ -113,6 +120,8 @@ pub fn augment(
         rgb: vec![0.0; 3 * n],
         depth: vec![0.0; n],
         labels: vec![VOID; n],
+        zoom: sw / cw,
+        depth_factor: 1.0,
     };
     let (fx, fy) = (cw / width as f32, ch / height as f32);
     let mut mean = 0.0f32;

@@ -67,6 +67,38 @@ impl ConvBn {
         if self.relu6 { relu6(x) } else { x }
     }
 
+    /// [`Self::forward`], recording the batch norm's input statistics in `probes`.
+    pub fn forward_probe(&self, x: Tensor<4>, name: &str, probes: &mut Vec<BnProbe>) -> Tensor<4> {
+        let y = conv2d(&self.conv, x);
+        let [n, c, h, w] = y.dims();
+        let batch_mean = y
+            .clone()
+            .swap_dims(0, 1)
+            .reshape([c, n * h * w])
+            .mean_dim(1)
+            .reshape([c]);
+        probes.push(BnProbe {
+            name: name.to_string(),
+            batch_mean: to_vec(batch_mean),
+            running_mean: to_vec(self.bn.running_mean.value()),
+        });
+        let y = self.bn.forward(y);
+        if self.relu6 { relu6(y) } else { y }
+    }
+
+    /// The identity: 1×1 identity weights and a fresh batch norm (γ 1, β 0, mean 0, variance 1).
+    fn into_identity(self) -> Self {
+        let [c, _, _, _] = self.conv.weight.dims();
+        let device = self.conv.weight.device();
+        let mut conv = self.conv;
+        conv.weight = super::imagenet::identity_1x1(conv.weight);
+        Self {
+            conv,
+            bn: BatchNormConfig::new(c).init(&device),
+            relu6: self.relu6,
+        }
+    }
+
     /// Summary text: the convolution and the activation.
     pub fn describe(&self) -> String {
         let act = if self.relu6 { "BN ReLU6" } else { "BN" };
@@ -116,6 +148,41 @@ impl InvertedResidual {
     }
 }
 
+/// The per-channel mean of a batch norm's input over a batch, beside the running mean it
+/// holds: with trained weights in the right layers the two agree (see `imagenet.rs`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BnProbe {
+    /// Which batch norm (`layer3.blocks.1.depthwise`).
+    pub name: String,
+    /// Mean of each input channel over the batch and the pixels.
+    pub batch_mean: Vec<f32>,
+    /// The stored running mean.
+    pub running_mean: Vec<f32>,
+}
+
+fn to_vec(t: Tensor<1>) -> Vec<f32> {
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap_or_default()
+}
+
+impl InvertedResidual {
+    /// Runs the block, recording each batch norm's input statistics.
+    fn forward_probe(&self, x: Tensor<4>, name: &str, probes: &mut Vec<BnProbe>) -> Tensor<4> {
+        let y = self
+            .expand
+            .forward_probe(x.clone(), &format!("{name}.expand"), probes);
+        let y = self
+            .depthwise
+            .forward_probe(y, &format!("{name}.depthwise"), probes);
+        let y = self
+            .project
+            .forward_probe(y, &format!("{name}.project"), probes);
+        if self.residual { y + x } else { y }
+    }
+}
+
 /// One encoder layer (Fig. 6 right, Table 4): a chain of inverted-residual blocks.
 #[derive(Module, Debug)]
 pub struct Stage {
@@ -154,6 +221,28 @@ impl Stage {
             x = block.forward_traced(x, trace, names);
         }
         x
+    }
+
+    /// Runs the blocks, recording every batch norm's input statistics under `name.blocks.B`.
+    pub fn forward_probe(
+        &self,
+        mut x: Tensor<4>,
+        name: &str,
+        probes: &mut Vec<BnProbe>,
+    ) -> Tensor<4> {
+        for (b, block) in self.blocks.iter().enumerate() {
+            x = block.forward_probe(x, &format!("{name}.blocks.{b}"), probes);
+        }
+        x
+    }
+
+    /// The stage with its first block's expansion made the identity (for a `t = 1` block that
+    /// ImageNet weights have no expansion for).
+    pub fn with_identity_first_expansion(mut self) -> Self {
+        if let Some(first) = self.blocks.first_mut() {
+            first.expand = first.expand.clone().into_identity();
+        }
+        self
     }
 
     /// Number of blocks.

@@ -202,6 +202,11 @@ pub fn locate_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
 
 /// The network section of a checkpoint's `config.toml` (the training config).
 pub fn read_network_config(config_path: &Path) -> Result<SdfcnnConfig> {
+    Ok(read_network_section(config_path)?.to_config())
+}
+
+/// The `[network]` section of a checkpoint's `config.toml`, with `depth_focal`.
+pub fn read_network_section(config_path: &Path) -> Result<NetworkConfig> {
     let text = crate::io::read_text(config_path)?;
     let table: toml::Table =
         toml::from_str(&text).map_err(|e| crate::camera::toml_error(config_path, &text, e))?;
@@ -220,7 +225,7 @@ pub fn read_network_config(config_path: &Path) -> Result<SdfcnnConfig> {
         })?,
         None => NetworkConfig::default(),
     };
-    Ok(net.to_config())
+    Ok(net)
 }
 
 /// One image's predictions at its resolution.
@@ -239,6 +244,9 @@ pub struct SdfcnnPredictor {
     device: Device,
     /// The network configuration.
     pub config: SdfcnnConfig,
+    /// The canonical camera's focal length in image widths (`[network] depth_focal`): depth is
+    /// scaled from it to the camera given to [`Self::predict_for_camera`]. `None`: as predicted.
+    pub depth_focal: Option<f64>,
     /// The weights file.
     pub checkpoint: PathBuf,
 }
@@ -247,7 +255,8 @@ impl SdfcnnPredictor {
     /// Loads a checkpoint (`model.bpk`, its folder, or a run folder) on `backend`.
     pub fn load(path: &Path, backend: BackendKind) -> Result<Self> {
         let (model_path, config_path) = locate_checkpoint(path)?;
-        let config = read_network_config(&config_path)?;
+        let network = read_network_section(&config_path)?;
+        let config = network.to_config();
         let device = backend.device();
         let model = config
             .init(&device)
@@ -257,6 +266,7 @@ impl SdfcnnPredictor {
             model,
             device,
             config,
+            depth_focal: network.depth_focal,
             checkpoint: model_path,
         })
     }
@@ -267,6 +277,7 @@ impl SdfcnnPredictor {
             model,
             device,
             config,
+            depth_focal: None,
             checkpoint: PathBuf::new(),
         }
     }
@@ -316,6 +327,29 @@ impl SdfcnnPredictor {
     /// Labels and depth of one RGB image at its resolution.
     pub fn predict(&self, rgb: &RgbImage) -> Result<Prediction> {
         Ok(self.predict_timed(rgb)?.0)
+    }
+
+    /// Labels and metric depth of one RGB image taken by a camera of horizontal focal length
+    /// `fx` pixels (at the image's resolution): the network's canonical-camera depth scaled by
+    /// `(fx / width) / depth_focal` ([`super::focal`]). Without `fx`, or for a network without
+    /// `depth_focal`, the depth is as predicted.
+    pub fn predict_for_camera(&self, rgb: &RgbImage, fx: Option<f64>) -> Result<Prediction> {
+        let mut p = self.predict(rgb)?;
+        let k = self.depth_scale_for(fx, rgb.width());
+        if k != 1.0 {
+            p.depth.data.iter_mut().for_each(|d| *d *= k);
+        }
+        Ok(p)
+    }
+
+    /// The factor [`Self::predict_for_camera`] applies to the predicted depth.
+    pub fn depth_scale_for(&self, fx: Option<f64>, width: u32) -> f32 {
+        match (self.depth_focal, fx) {
+            (Some(canonical), Some(fx)) if width > 0 => {
+                (1.0 / super::focal::to_canonical(canonical, fx, width as f64, 1.0)) as f32
+            }
+            _ => 1.0,
+        }
     }
 
     /// Saves the weights as f16 burnpack (half the size), atomically; [`Self::load`] reads

@@ -3,11 +3,14 @@
 
 mod blocks;
 pub mod data;
+pub mod focal;
+pub mod imagenet;
 pub mod inference;
 pub mod loss;
 mod model;
 pub mod training;
 
+pub use blocks::BnProbe;
 pub use inference::{Prediction, SdfcnnPredictor};
 pub use loss::{DepthLoss, LossParts, LossResolution, SdfcnnLossConfig};
 pub use model::{Sdfcnn, SdfcnnConfig, SdfcnnError, SdfcnnOutput};

@@ -56,12 +56,12 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
-use super::blocks::{ConvBn, Crp, CrpNames, Stage, conv, describe};
+use super::blocks::{BnProbe, ConvBn, Crp, CrpNames, Stage, conv, describe};
 use crate::nn::{ShapeTrace, conv2d, resize_bilinear};
 
 /// Inverted-residual layers of the encoder, `(expansion, out_channels, blocks, stride)`:
 /// Layer2 … Layer6, then Layer7's 160-channel part and its final 320-channel block.
-const ENCODER: [(usize, usize, usize, usize); 7] = [
+pub(super) const ENCODER: [(usize, usize, usize, usize); 7] = [
     (1, 16, 1, 1),
     (6, 24, 2, 2),
     (6, 32, 3, 2),
@@ -367,6 +367,34 @@ impl Sdfcnn {
             trace.record(name, describe(conv), &y);
         }
         y
+    }
+
+    /// Runs Layer0 … Layer7 on `input` and returns, for each of the encoder's 52 batch norms,
+    /// the per-channel mean of its input over the batch beside its stored running mean.
+    pub fn encoder_bn_probe(&self, input: Tensor<4>) -> Result<Vec<BnProbe>, SdfcnnError> {
+        self.check_input(&input)?;
+        let mut probes = Vec::new();
+        let x = self.layer0(input);
+        let x = self.layer1.forward_probe(x, "layer1", &mut probes);
+        let stages = [
+            ("layer2", &self.layer2),
+            ("layer3", &self.layer3),
+            ("layer4", &self.layer4),
+            ("layer5", &self.layer5),
+            ("layer6", &self.layer6),
+            ("layer7", &self.layer7),
+            ("layer7_320", &self.layer7_320),
+        ];
+        stages.iter().fold(x, |x, (name, stage)| {
+            stage.forward_probe(x, name, &mut probes)
+        });
+        Ok(probes)
+    }
+
+    /// The model with Layer2's expansion convolution made the identity (see `imagenet.rs`).
+    pub(super) fn with_identity_layer2_expansion(mut self) -> Self {
+        self.layer2 = self.layer2.with_identity_first_expansion();
+        self
     }
 
     /// Inner (Layer0) size `[height, width]`.

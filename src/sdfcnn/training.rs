@@ -44,7 +44,7 @@ use super::inference::load_weights;
 use super::loss::{LossResolution, SdfcnnLossConfig};
 use super::{Sdfcnn, SdfcnnConfig, SdfcnnOutput};
 use crate::camera::toml_error;
-use crate::dataset::augment::{AugmentConfig, SegDepthSample};
+use crate::dataset::augment::AugmentConfig;
 use crate::error::{Error, Result};
 use crate::metrics::{ConfusionMatrix, DepthAccumulator};
 use crate::nn::{resize_bilinear, seeded_init};
@@ -74,6 +74,12 @@ pub struct SdfcnnTrainConfig {
     /// How many epoch checkpoints to keep (0 = all).
     #[serde(default = "default_keep")]
     pub keep_checkpoints: usize,
+    /// Start from these weights instead of a random initialisation (ignored by `--resume`):
+    /// a checkpoint of ours (`model.bpk`, its folder or a run folder; the whole network), or a
+    /// `.safetensors` file of torchvision-named ImageNet MobileNetV2 weights (the encoder;
+    /// see [`super::imagenet`]). The optimizer starts afresh.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
     /// Training and validation data.
     pub data: DataConfig,
     /// Optimizer and learning-rate schedule.
@@ -99,9 +105,10 @@ fn default_keep() -> usize {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DataConfig {
-    /// Training folders (all samples are used together).
+    /// Training sources (all samples are used together, each source `repeat` times): NYU
+    /// layouts (labels and depth) and TUM RGB-D sequences (depth only).
     pub train: Vec<DataSource>,
-    /// Validation folders (none: no validation).
+    /// Validation sources (none: no validation); named ones get their own metrics.
     #[serde(default)]
     pub val: Vec<DataSource>,
     /// Training image size `[height, width]` the samples are cropped and resized to.
@@ -110,7 +117,7 @@ pub struct DataConfig {
     /// Validation image size (default: `size`).
     #[serde(default)]
     pub val_size: Option<[usize; 2]>,
-    /// Validate on at most this many samples (the first ones).
+    /// Validate on at most this many samples of each source (its first ones).
     #[serde(default)]
     pub val_limit: Option<usize>,
     /// Augmentation of the training samples.
@@ -252,6 +259,10 @@ pub struct NetworkConfig {
     pub decoder_dim: usize,
     /// Stages of each chained residual pooling.
     pub crp_stages: usize,
+    /// The canonical camera's focal length in image widths: depth targets are scaled to it in
+    /// training and predictions scaled back for the camera at inference
+    /// ([`super::focal`]). `None`: depth in metres as is, whatever the camera.
+    pub depth_focal: Option<f64>,
 }
 
 impl Default for NetworkConfig {
@@ -264,6 +275,7 @@ impl Default for NetworkConfig {
             std: c.std,
             decoder_dim: c.decoder_dim,
             crp_stages: c.crp_stages,
+            depth_focal: None,
         }
     }
 }
@@ -308,6 +320,27 @@ impl SdfcnnTrainConfig {
         }
         if self.network.num_classes == 0 || self.network.num_classes > 255 {
             return Err("network.num_classes must be in 1..=255 (255 is void)".into());
+        }
+        if let Some(f) = self.network.depth_focal
+            && !(f > 0.05 && f < 20.0)
+        {
+            return Err(format!(
+                "network.depth_focal {f} must be a focal length in image widths (0.05..20; NYUv2: 0.8107)"
+            ));
+        }
+        const MAX_SIDE: usize = 8192;
+        let sizes_ok = [
+            Some(self.data.size),
+            self.data.val_size,
+            Some(self.network.inner_size),
+        ]
+        .iter()
+        .flatten()
+        .all(|s| s.iter().all(|&v| v <= MAX_SIDE));
+        if !sizes_ok || self.batch_size > 4096 {
+            return Err(format!(
+                "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 4096"
+            ));
         }
         self.optimizer.validate()?;
         self.loss.validate()?;
@@ -357,20 +390,24 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let backend = opts.backend.unwrap_or(cfg.backend);
     let out = opts.out.clone().unwrap_or_else(|| cfg.out.clone());
     let sources = |list: &[DataSource]| -> Vec<DataSource> {
-        list.iter()
-            .map(|s| DataSource {
-                path: resolve(&s.path, config_path),
-                split: s.split.as_ref().map(|p| resolve(p, config_path)),
-                depth_scale: s.depth_scale,
-            })
-            .collect()
+        list.iter().map(|s| s.resolved(config_path)).collect()
     };
-    let train = SegDepthData::open(&sources(&cfg.data.train))?;
+    let focal = cfg.network.depth_focal;
+    let train = SegDepthData::open(&sources(&cfg.data.train))?.with_canonical(focal);
     let val = if cfg.data.val.is_empty() {
         None
     } else {
-        Some(SegDepthData::open(&sources(&cfg.data.val))?)
+        Some(SegDepthData::open(&sources(&cfg.data.val))?.with_canonical(focal))
     };
+    let init = cfg.init.as_ref().map(|p| resolve(p, config_path));
+    if let Some(p) = &init
+        && !p.exists()
+    {
+        return Err(Error::invalid(
+            config_path,
+            format!("init {} does not exist", p.display()),
+        ));
+    }
 
     let mut run = RunDir::prepare(&out, config_text, opts.resume)?;
     run.keep = cfg.keep_checkpoints;
@@ -382,6 +419,9 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let mut model = seeded_init(model, cfg.seed);
     let mut optim = cfg.optimizer.init();
     let mut state = TrainState::default();
+    if let (Some(init), false) = (&init, opts.resume) {
+        model = initialise(model, init, &train, &cfg)?;
+    }
     if opts.resume {
         let ck = run
             .latest()?
@@ -468,6 +508,50 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     Ok(())
 }
 
+/// Loads `init` into `model`: ImageNet encoder weights from a `.safetensors` file (checked on
+/// the first training images, see [`super::imagenet::bn_agreement`]) or a whole checkpoint.
+fn initialise(
+    model: Sdfcnn,
+    init: &Path,
+    train: &SegDepthData,
+    cfg: &SdfcnnTrainConfig,
+) -> Result<Sdfcnn> {
+    let is_safetensors = init
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("safetensors"));
+    if !is_safetensors {
+        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
+        println!("initialised from {}", weights.display());
+        return load_weights(model, &weights, &config);
+    }
+    let (model, report) = super::imagenet::load_imagenet(model, init)?;
+    // The mapping check: batch-norm input means against the stored running means.
+    let n = train.len().min(cfg.batch_size.max(8));
+    let indices: Vec<usize> = (0..n).map(|k| k * train.len() / n.max(1)).collect();
+    let none = AugmentConfig::none();
+    let samples = train.load_batch(&indices, cfg.data.size, &none, &mut batch_rng(0, 0, 0))?;
+    let snapshot = model.clone().valid();
+    let batch = SdfcnnBatch::from_samples(&samples, &model_device(&snapshot))?;
+    let probe = snapshot
+        .encoder_bn_probe(batch.images)
+        .map_err(|e| Error::msg(e.to_string()))?;
+    let r = super::imagenet::bn_agreement(&probe);
+    let values: Vec<f64> = r.iter().map(|(_, v)| *v).collect();
+    let stats = crate::metrics::Stats::of(&values);
+    println!(
+        "initialised the encoder from ImageNet weights {} ({} tensors; {} ignored): batch-norm \
+         input means vs running means on {n} training images: median r = {:.3}, lowest {:.3} \
+         ({} layers)",
+        init.display(),
+        report.loaded,
+        report.ignored.len(),
+        stats.map_or(f64::NAN, |s| s.median),
+        stats.map_or(f64::NAN, |s| s.min),
+        values.len()
+    );
+    Ok(model)
+}
+
 /// Network outputs at the loss resolution.
 fn forward(model: &Sdfcnn, images: Tensor<4>, res: LossResolution) -> Result<SdfcnnOutput> {
     let out = match res {
@@ -481,7 +565,9 @@ fn scalar(t: &Tensor<1>) -> f64 {
     t.clone().into_scalar::<f32>() as f64
 }
 
-/// Validation loss and the eqs 16-20 metrics of `model` on `data` at `size`.
+/// Validation loss and the eqs 16-20 metrics of `model` on `data` at `size`, overall and for
+/// each named source (`val_<name>_delta1`, ...). Depth metrics are in metres: predictions and
+/// targets are taken back from the canonical camera ([`super::focal`]).
 fn validate(
     model: &Sdfcnn,
     data: &SegDepthData,
@@ -490,11 +576,14 @@ fn validate(
     values: &mut BTreeMap<String, f64>,
 ) -> Result<()> {
     let device = model_device(model);
-    let n = cfg.data.val_limit.map_or(data.len(), |l| l.min(data.len()));
-    let indices: Vec<usize> = (0..n).collect();
+    let indices = data.first_of_each(cfg.data.val_limit);
     let mut meter = LossMeter::default();
-    let mut confusion = ConfusionMatrix::new(cfg.network.num_classes);
+    let classes = cfg.network.num_classes;
+    let mut confusion = ConfusionMatrix::new(classes);
     let mut depth_acc = DepthAccumulator::default();
+    let mut per_source: Vec<(ConfusionMatrix, DepthAccumulator)> = (0..data.num_sources())
+        .map(|_| (ConfusionMatrix::new(classes), DepthAccumulator::default()))
+        .collect();
     let none = AugmentConfig::none();
     for chunk in indices.chunks(cfg.batch_size) {
         let samples = data.load_batch(chunk, size, &none, &mut batch_rng(0, 0, 0))?;
@@ -514,20 +603,51 @@ fn validate(
             chunk.len(),
         );
         let (labels, depth) = predictions(full)?;
-        accumulate(&samples, &labels, &depth, &mut confusion, &mut depth_acc);
+        let mut offset = 0;
+        for (s, &i) in samples.iter().zip(chunk) {
+            let n = s.width * s.height;
+            let pred_labels = &labels[offset..offset + n];
+            let metres = |d: &[f32]| -> Vec<f32> { d.iter().map(|v| v / s.depth_factor).collect() };
+            let (gt_depth, pred_depth) = (metres(&s.depth), metres(&depth[offset..offset + n]));
+            confusion.add(&s.labels, pred_labels);
+            depth_acc.add(&gt_depth, &pred_depth);
+            if let Some(k) = data.source_of(i) {
+                per_source[k].0.add(&s.labels, pred_labels);
+                per_source[k].1.add(&gt_depth, &pred_depth);
+            }
+            offset += n;
+        }
     }
     meter.record("val", values);
-    values.insert("val_mpa".into(), confusion.mpa());
-    values.insert("val_miou".into(), confusion.miou());
-    values.insert("val_pixel_acc".into(), confusion.pixel_accuracy());
-    if let Some(m) = depth_acc.finish() {
-        values.insert("val_rms".into(), m.rms);
-        values.insert("val_rel".into(), m.rel);
-        values.insert("val_delta1".into(), m.delta1);
-        values.insert("val_delta2".into(), m.delta2);
-        values.insert("val_delta3".into(), m.delta3);
+    record_metrics("val", &confusion, &depth_acc, values);
+    for (k, (c, d)) in per_source.iter().enumerate() {
+        if let Some(name) = data.source_name(k) {
+            record_metrics(&format!("val_{name}"), c, d, values);
+        }
     }
     Ok(())
+}
+
+/// `{prefix}_mpa`, `_miou`, `_pixel_acc` (when any pixel is labelled) and `{prefix}_rms`,
+/// `_rel`, `_delta1..3` (when any has depth).
+fn record_metrics(
+    prefix: &str,
+    confusion: &ConfusionMatrix,
+    depth: &DepthAccumulator,
+    values: &mut BTreeMap<String, f64>,
+) {
+    if confusion.per_class().iter().any(|c| c.gt_pixels > 0) {
+        values.insert(format!("{prefix}_mpa"), confusion.mpa());
+        values.insert(format!("{prefix}_miou"), confusion.miou());
+        values.insert(format!("{prefix}_pixel_acc"), confusion.pixel_accuracy());
+    }
+    if let Some(m) = depth.finish() {
+        values.insert(format!("{prefix}_rms"), m.rms);
+        values.insert(format!("{prefix}_rel"), m.rel);
+        values.insert(format!("{prefix}_delta1"), m.delta1);
+        values.insert(format!("{prefix}_delta2"), m.delta2);
+        values.insert(format!("{prefix}_delta3"), m.delta3);
+    }
 }
 
 /// The device a model's parameters live on.
@@ -555,22 +675,6 @@ pub(crate) fn predictions(out: SdfcnnOutput) -> Result<(Vec<u8>, Vec<f32>)> {
         .try_into_vec::<f32>()
         .map_err(|e| Error::msg(format!("reading depth: {e:?}")))?;
     Ok((labels, depth))
-}
-
-fn accumulate(
-    samples: &[SegDepthSample],
-    labels: &[u8],
-    depth: &[f32],
-    confusion: &mut ConfusionMatrix,
-    depth_acc: &mut DepthAccumulator,
-) {
-    let mut offset = 0;
-    for s in samples {
-        let n = s.width * s.height;
-        confusion.add(&s.labels, &labels[offset..offset + n]);
-        depth_acc.add(&s.depth, &depth[offset..offset + n]);
-        offset += n;
-    }
 }
 
 fn progress_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> ProgressBar {
@@ -601,6 +705,14 @@ fn epoch_line(r: &EpochRecord, epochs: usize) -> String {
         "val_delta1",
     ] {
         if let Some(v) = r.values.get(key) {
+            s.push_str(&format!(" {key} {v:.4}"));
+        }
+    }
+    // Named validation sources: their δ1 and REL (and MPA where labelled).
+    for (key, v) in &r.values {
+        let named = key.starts_with("val_") && key.matches('_').count() >= 2;
+        let shown = ["_delta1", "_rel", "_mpa"].iter().any(|m| key.ends_with(m));
+        if named && shown && !key.ends_with("_pixel_acc") {
             s.push_str(&format!(" {key} {v:.4}"));
         }
     }
@@ -718,7 +830,11 @@ crp_stages = 2
 
     #[test]
     fn shipped_configs_parse() {
-        for p in ["configs/sdfcnn.toml", "configs/sdfcnn_tiny.toml"] {
+        for p in [
+            "configs/sdfcnn.toml",
+            "configs/sdfcnn_tiny.toml",
+            "configs/sdfcnn_real.toml",
+        ] {
             let text = std::fs::read_to_string(p).expect("shipped config");
             let c = SdfcnnTrainConfig::parse(&text, Path::new(p)).expect("valid");
             assert_eq!(c.model, "sdfcnn");
@@ -804,6 +920,50 @@ crp_stages = 2
             msg.contains("model.bpk") && msg.contains("config.toml"),
             "{msg}"
         );
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn imagenet_init_with_real_depth_sources() {
+        let root = tmp("imagenet");
+        let weights = root.join("mnv2.safetensors");
+        crate::sdfcnn::imagenet::tests::write_fake_imagenet(&weights);
+        let out = root.join("run");
+        let text = tiny_config(&out, "")
+            .replace("epochs = 2", &format!("epochs = 1\ninit = \"{}\"", weights.display()))
+            .replace(
+                "train = [{ path = \"datasets/fixtures/nyuv2\" }]",
+                "train = [{ path = \"datasets/fixtures/nyuv2\" }, \
+                 { path = \"datasets/fixtures/tum_fr1_rpy_head10\", camera = \"fr1\", frames = [0, 6], repeat = 2 }]",
+            )
+            .replace(
+                "val = [{ path = \"datasets/fixtures/nyuv2\" }]",
+                "val = [{ path = \"datasets/fixtures/tum_fr1_rpy_head10\", camera = \"fr1\", frames = [6, 10], name = \"tum\" }]",
+            )
+            .replace("[network]\n", "[network]\ndepth_focal = 0.8107\n");
+        run(&root.join("init.toml"), &text, &quiet()).expect("trains");
+        let state = RunDir {
+            root: out.clone(),
+            keep: 0,
+        }
+        .latest()
+        .expect("readable")
+        .expect("a checkpoint")
+        .state;
+        let values = &state.history.epochs[0].values;
+        assert!(values["val_tum_delta1"] >= 0.0 && values["val_tum_rel"] > 0.0);
+        // Depth-only validation data: no segmentation metrics.
+        assert!(!values.contains_key("val_tum_mpa") && !values.contains_key("val_mpa"));
+        let e = run(
+            &root.join("init.toml"),
+            &text.replace("mnv2.safetensors", "missing.safetensors"),
+            &RunOptions {
+                out: Some(root.join("run2")),
+                ..quiet()
+            },
+        )
+        .expect_err("missing init");
+        assert!(e.to_string().contains("missing.safetensors"), "{e}");
         std::fs::remove_dir_all(&root).ok();
     }
 

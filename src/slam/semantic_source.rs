@@ -63,6 +63,9 @@ impl SemanticSource for NoLabels {
 #[derive(Debug)]
 pub struct SdfcnnSource {
     pub predictor: SdfcnnPredictor,
+    /// The camera's horizontal focal length in pixels: depth is scaled from the network's
+    /// canonical camera to it (`crate::sdfcnn::focal`). `None`: depth as predicted.
+    pub fx: Option<f64>,
 }
 
 /// Classes of the semantic map (NYU40).
@@ -90,7 +93,16 @@ impl SdfcnnSource {
                 ),
             ));
         }
-        Ok(SdfcnnSource { predictor })
+        Ok(SdfcnnSource {
+            predictor,
+            fx: None,
+        })
+    }
+
+    /// Metric depth for the camera that takes the sequence (its `fx` at the images' size).
+    pub fn with_camera(mut self, camera: &crate::camera::Camera) -> Self {
+        self.fx = Some(camera.fx);
+        self
     }
 }
 
@@ -104,12 +116,15 @@ impl SemanticSource for SdfcnnSource {
     }
 
     fn predict(&self, input: &SemanticInput<'_>) -> Result<(LabelImage, Option<DepthImage>)> {
-        let p = self.predictor.predict(input.rgb).map_err(|e| {
-            Error::msg(format!(
-                "frame {}: SDFCNN inference failed: {e}",
-                input.index
-            ))
-        })?;
+        let p = self
+            .predictor
+            .predict_for_camera(input.rgb, self.fx)
+            .map_err(|e| {
+                Error::msg(format!(
+                    "frame {}: SDFCNN inference failed: {e}",
+                    input.index
+                ))
+            })?;
         Ok((p.labels, Some(p.depth)))
     }
 }

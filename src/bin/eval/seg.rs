@@ -1,10 +1,14 @@
 //! `eval seg`: SDFCNN segmentation and depth accuracy at the images' own resolution, printed as
 //! the paper's Table 8 (MPA, mIoU, time, parameters) and Table 9 (RMS, REL, δ1-3, time,
-//! parameters), plus a per-class table.
+//! parameters), plus a per-class table. `--data` is a NYUv2 layout (labels and depth) or a
+//! TUM RGB-D sequence (depth only, `--frames` / `--every` select frames); the depth is made
+//! metric for the data's camera (`--camera`, the folder's `camera.toml`, or NYUv2's camera for
+//! NYU layouts), see `sdf_slam::sdfcnn::focal`.
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::Args;
-use sdf_slam::dataset::NyuDataset;
+use sdf_slam::camera::Camera;
+use sdf_slam::dataset::{DepthImage, LabelImage, NyuDataset, TumConfig, TumSequence};
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics};
 use sdf_slam::sdfcnn::SdfcnnPredictor;
 use sdf_slam::sdfcnn::inference::{colorize_depth, colorize_labels, nyu40_names, save_figure};
@@ -17,12 +21,23 @@ pub struct SegArgs {
     /// Checkpoint: model.bpk (with config.toml beside it), its folder, or a run folder.
     #[arg(long)]
     checkpoint: PathBuf,
-    /// NYUv2-layout dataset folder, or the official nyu_depth_v2_labeled.mat.
+    /// NYUv2-layout dataset folder, the official nyu_depth_v2_labeled.mat, or a TUM RGB-D
+    /// sequence folder (depth only).
     #[arg(long)]
     data: PathBuf,
-    /// Split list (ids or 1-based indices).
+    /// Split list (ids or 1-based indices; NYU layouts).
     #[arg(long)]
     split: Option<PathBuf>,
+    /// The camera: fr1, fr2, fr3 or a camera TOML file [default: the folder's camera.toml;
+    /// NYUv2's camera for NYU layouts without one].
+    #[arg(long)]
+    camera: Option<String>,
+    /// TUM sequences: frames FIRST END (0-based, END excluded) [default: all].
+    #[arg(long, num_args = 2, value_names = ["FIRST", "END"])]
+    frames: Option<Vec<usize>>,
+    /// TUM sequences: every N-th frame.
+    #[arg(long, default_value_t = 1)]
+    every: usize,
     /// Backend.
     #[arg(long, value_enum, default_value_t = BackendKind::Ndarray)]
     backend: BackendKind,
@@ -54,9 +69,122 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// The images `eval seg` reads.
+enum EvalData {
+    Nyu(Box<NyuDataset>),
+    /// A TUM sequence's selected frames.
+    Tum(TumSequence, Vec<usize>),
+}
+
+/// One evaluation image: id, colour, depth (metres) and labels (void for TUM frames).
+type EvalItem = (String, image::RgbImage, Option<DepthImage>, LabelImage);
+
+impl EvalData {
+    fn open(a: &SegArgs) -> Result<Self> {
+        let is_tum = a.data.join("rgb.txt").is_file() || a.data.join("associations.txt").is_file();
+        if !is_tum {
+            if a.frames.is_some() {
+                bail!(
+                    "--frames selects frames of a TUM sequence; {} is a NYU layout",
+                    a.data.display()
+                );
+            }
+            let mut data = NyuDataset::open(&a.data, a.split.as_deref())?;
+            data.depth_scale = a.depth_scale;
+            return Ok(EvalData::Nyu(Box::new(data)));
+        }
+        if a.split.is_some() {
+            bail!(
+                "--split is for NYU layouts; select a sequence's frames with --frames and --every"
+            );
+        }
+        if a.every == 0 {
+            bail!("--every must be at least 1");
+        }
+        let config = TumConfig {
+            depth_scale: a.depth_scale,
+            ..TumConfig::default()
+        };
+        let seq = TumSequence::open_with(&a.data, config)?;
+        let (first, end) = match a.frames.as_deref() {
+            Some(&[f, e]) => (f, e),
+            _ => (0, seq.len()),
+        };
+        if first >= end || end > seq.len() {
+            bail!(
+                "--frames {first} {end}: {} has frames 0..{}",
+                a.data.display(),
+                seq.len()
+            );
+        }
+        let frames = (first..end).step_by(a.every).collect();
+        Ok(EvalData::Tum(seq, frames))
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            EvalData::Nyu(d) => d.len(),
+            EvalData::Tum(_, f) => f.len(),
+        }
+    }
+
+    fn load(&self, i: usize) -> Result<EvalItem> {
+        Ok(match self {
+            EvalData::Nyu(d) => {
+                let item = d.load(i)?;
+                (item.id, item.rgb, item.depth, item.labels)
+            }
+            EvalData::Tum(seq, frames) => {
+                let f = frames[i];
+                let rgb = seq.load_rgb(f)?;
+                let depth = seq.load_depth(f)?;
+                let labels =
+                    LabelImage::new(rgb.width(), rgb.height(), sdf_slam::dataset::labels::VOID);
+                (format!("frame{f:05}"), rgb, depth, labels)
+            }
+        })
+    }
+
+    /// The data's horizontal focal length in pixels.
+    fn fx(&self, a: &SegArgs, width: u32, height: u32) -> Result<f64> {
+        let camera = match &a.camera {
+            Some(spec) => Some(Camera::load(spec)?),
+            None if a.data.join("camera.toml").is_file() => {
+                Some(Camera::from_file(a.data.join("camera.toml"))?)
+            }
+            None => None,
+        };
+        match (camera, self) {
+            (Some(c), _) => {
+                if (c.width, c.height) != (width, height) {
+                    bail!(
+                        "the camera is {}x{} but the images of {} are {width}x{height}: give their camera with --camera",
+                        c.width,
+                        c.height,
+                        a.data.display()
+                    );
+                }
+                Ok(c.fx)
+            }
+            (None, EvalData::Nyu(_)) => Ok(sdf_slam::sdfcnn::focal::NYU_FX),
+            (None, EvalData::Tum(..)) => bail!(
+                "{} has no camera.toml: name its camera with --camera fr1|fr2|fr3|FILE",
+                a.data.display()
+            ),
+        }
+    }
+}
+
+/// An image's fields by name, for the figure code below.
+struct Item {
+    id: String,
+    rgb: image::RgbImage,
+    depth: Option<DepthImage>,
+    labels: LabelImage,
+}
+
 pub fn run(a: &SegArgs) -> Result<()> {
-    let mut data = NyuDataset::open(&a.data, a.split.as_deref())?;
-    data.depth_scale = a.depth_scale;
+    let data = EvalData::open(a)?;
     let predictor = SdfcnnPredictor::load(&a.checkpoint, a.backend)?;
     let params = predictor.num_params();
     let classes = predictor.config.num_classes;
@@ -67,17 +195,30 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let mut confusion = ConfusionMatrix::new(classes);
     let mut depth = DepthAccumulator::default();
     let mut times = Vec::with_capacity(n);
+    let mut fx = None;
     for i in 0..n {
-        let item = data.load(i)?;
+        let (id, rgb, gt_depth, gt_labels) = data.load(i)?;
+        let fx = match fx {
+            Some(fx) => fx,
+            None => *fx.insert(data.fx(a, rgb.width(), rgb.height())?),
+        };
         if i == 0 {
-            predictor.predict(&item.rgb)?; // warm-up
+            predictor.predict(&rgb)?; // warm-up
         }
-        let (pred, seconds) = predictor.predict_timed(&item.rgb)?;
+        let (mut pred, seconds) = predictor.predict_timed(&rgb)?;
+        let k = predictor.depth_scale_for(Some(fx), rgb.width());
+        pred.depth.data.iter_mut().for_each(|d| *d *= k);
         times.push(seconds);
-        confusion.add(&item.labels.data, &pred.labels.data);
-        if let Some(d) = &item.depth {
+        confusion.add(&gt_labels.data, &pred.labels.data);
+        if let Some(d) = &gt_depth {
             depth.add(&d.data, &pred.depth.data);
         }
+        let item = Item {
+            id,
+            rgb,
+            depth: gt_depth,
+            labels: gt_labels,
+        };
         if let Some(out) = &a.out {
             let png = |img: image::RgbImage, suffix: &str| {
                 sdf_slam::imageio::write_png_atomic(
@@ -99,17 +240,18 @@ pub fn run(a: &SegArgs) -> Result<()> {
     eprintln!();
     let time = median(times.clone());
     let m = depth.finish();
-    print_tables(
-        a,
-        &predictor,
-        n,
-        confusion.mpa(),
-        confusion.miou(),
-        m,
-        time,
-        params,
-    );
-    print_classes(&confusion);
+    let labelled = confusion.per_class().iter().any(|c| c.gt_pixels > 0);
+    let seg = labelled.then(|| (confusion.mpa(), confusion.miou()));
+    print_tables(a, &predictor, n, seg, m, time, params);
+    if let (Some(fx), Some(canonical)) = (fx, predictor.depth_focal) {
+        println!(
+            "Depth made metric for a camera of fx {fx:.1} px (the network predicts it for a focal \
+             length of {canonical:.4} image widths; see src/sdfcnn/focal.rs)."
+        );
+    }
+    if labelled {
+        print_classes(&confusion);
+    }
     if let Some(p) = &a.json {
         let names = nyu40_names();
         let per_class: Vec<_> = confusion
@@ -123,9 +265,10 @@ pub fn run(a: &SegArgs) -> Result<()> {
             .collect();
         let v = json!({
             "checkpoint": predictor.checkpoint, "data": a.data, "images": n,
+            "camera_fx": fx, "depth_focal": predictor.depth_focal,
             "backend": a.backend.to_string(),
-            "mpa": confusion.mpa(), "miou": confusion.miou(),
-            "pixel_accuracy": confusion.pixel_accuracy(),
+            "mpa": seg.map(|s| s.0), "miou": seg.map(|s| s.1),
+            "pixel_accuracy": labelled.then(|| confusion.pixel_accuracy()),
             "depth": m, "time_per_image_s": time, "time_mean_s": times.iter().sum::<f64>() / n.max(1) as f64,
             "parameters": params, "per_class": per_class,
         });
@@ -135,13 +278,11 @@ pub fn run(a: &SegArgs) -> Result<()> {
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
 fn print_tables(
     a: &SegArgs,
     predictor: &SdfcnnPredictor,
     n: usize,
-    mpa: f64,
-    miou: f64,
+    seg: Option<(f64, f64)>,
     depth: Option<DepthMetrics>,
     time: f64,
     params: usize,
@@ -158,7 +299,14 @@ fn print_tables(
     println!("|---|---|---|---|---|");
     println!("| DeepLab [6] (paper) | 0.614 | 0.354 | 1.44 s | 452.9 M |");
     println!("| SDFCNN (paper) | 0.561 | 0.319 | 0.66 s | 11.8 M |");
-    println!("| SDFCNN (this run) | {mpa:.3} | {miou:.3} | {time:.3} s | {p} |\n");
+    match seg {
+        Some((mpa, miou)) => {
+            println!("| SDFCNN (this run) | {mpa:.3} | {miou:.3} | {time:.3} s | {p} |\n")
+        }
+        None => println!(
+            "| SDFCNN (this run) | - | - | {time:.3} s | {p} |\n\n(no ground-truth labels)\n"
+        ),
+    }
     println!("Table 9. Depth (eqs 18-20; pixels with ground-truth depth)\n");
     println!("| Network | RMS | REL | Accuracy (1.25/1.25²/1.25³) | Time | Parameter |");
     println!("|---|---|---|---|---|---|");

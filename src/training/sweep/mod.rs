@@ -103,17 +103,10 @@ fn normalized<T: serde::Serialize>(cfg: &T, path: &Path) -> Result<Value> {
 }
 
 fn sdfcnn_check_data(text: &str, path: &Path) -> Result<()> {
-    use crate::sdfcnn::data::{DataSource, SegDepthData, resolve};
+    use crate::sdfcnn::data::{DataSource, SegDepthData};
     let cfg = crate::sdfcnn::SdfcnnTrainConfig::parse(text, path)?;
     for list in [&cfg.data.train, &cfg.data.val] {
-        let sources: Vec<DataSource> = list
-            .iter()
-            .map(|s| DataSource {
-                path: resolve(&s.path, path),
-                split: s.split.as_ref().map(|p| resolve(p, path)),
-                depth_scale: s.depth_scale,
-            })
-            .collect();
+        let sources: Vec<DataSource> = list.iter().map(|s| s.resolved(path)).collect();
         SegDepthData::open(&sources)?;
     }
     Ok(())

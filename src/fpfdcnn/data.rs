@@ -9,7 +9,12 @@
 //! cells) or the whole frame resized ([`Sampling::Resize`]). Frames are kept in
 //! memory as grayscale. The last `val_fraction` of every sequence (by frame index)
 //! is held out for validation.
+//!
+//! Beside the posed pairs, a sequence may add `homographies` pairs per training frame
+//! ([`super::homography`]): a crop of the frame and the same crop through a random
+//! homography, with exact matches (SuperPoint's recipe) on real texture.
 
+use super::homography::{Homography, HomographyConfig};
 use crate::camera::Camera;
 use crate::dataset::fp_pairs::{FpConfig, FpMatch, fp_pairs};
 use crate::dataset::photometric::PhotometricAugment;
@@ -36,6 +41,10 @@ pub struct SequenceSource {
     /// (weights a small real sequence against larger synthetic ones; frames load once).
     #[serde(default = "default_repeat")]
     pub repeat: usize,
+    /// Homography pairs per training frame (0 = none), made afresh in every batch
+    /// ([`super::homography`]); needs `sampling = "crop"`.
+    #[serde(default)]
+    pub homographies: usize,
 }
 
 fn default_camera() -> String {
@@ -61,6 +70,8 @@ pub struct FpDataConfig {
     pub augment: PhotometricAugment,
     /// How a frame becomes a training image.
     pub sampling: Sampling,
+    /// The range of the homographies of homography pairs.
+    pub homography: HomographyConfig,
 }
 
 /// How a frame becomes a `height x width` training image.
@@ -92,6 +103,7 @@ impl Default for FpDataConfig {
             val_fraction: 0.15,
             augment: PhotometricAugment::default(),
             sampling: Sampling::default(),
+            homography: HomographyConfig::default(),
         }
     }
 }
@@ -109,7 +121,10 @@ pub struct FrameEntry {
 pub struct PairEntry {
     pub a: usize,
     pub b: usize,
+    /// Ground-truth matches (eqs 5-7); empty for a homography pair.
     pub matches: Vec<FpMatch>,
+    /// Frame `a` paired with itself through a random homography (`a == b`).
+    pub homography: bool,
 }
 
 /// Frames and pairs of one split.
@@ -121,6 +136,8 @@ pub struct FpDataset {
     pub sampling: Sampling,
     pub frames: Vec<FrameEntry>,
     pub pairs: Vec<PairEntry>,
+    /// The homographies of homography pairs.
+    pub homography: HomographyConfig,
 }
 
 /// A batch ready for the network.
@@ -184,16 +201,24 @@ impl FpDataset {
             )));
         }
         let crop = cfg.sampling == Sampling::Crop;
+        cfg.homography.validate().map_err(Error::msg)?;
         let mut train = FpDataset {
             height,
             width,
             sampling: cfg.sampling,
+            homography: cfg.homography.clone(),
             ..Default::default()
         };
         let mut val = train.clone();
         for src in &cfg.sequences {
             if src.repeat == 0 {
                 return Err(Error::invalid(&src.path, "repeat must be at least 1"));
+            }
+            if src.homographies > 100 || (src.homographies > 0 && !crop) {
+                return Err(Error::invalid(
+                    &src.path,
+                    "homographies must be at most 100 and needs sampling = \"crop\"",
+                ));
             }
             let seq = TumSequence::open(&src.path)?;
             let camera = Camera::load(&src.camera)?;
@@ -274,12 +299,24 @@ impl FpDataset {
                         a: offset_train + a,
                         b: offset_train + b,
                         matches,
+                        homography: false,
                     });
                 } else if a >= cut {
                     val.pairs.push(PairEntry {
                         a: offset_val + a - cut,
                         b: offset_val + b - cut,
                         matches,
+                        homography: false,
+                    });
+                }
+            }
+            for f in offset_train..train.frames.len() {
+                for _ in 0..src.homographies {
+                    train.pairs.push(PairEntry {
+                        a: f,
+                        b: f,
+                        matches: Vec::new(),
+                        homography: true,
                     });
                 }
             }
@@ -317,24 +354,19 @@ impl FpDataset {
         let mut matches = Vec::with_capacity(n);
         for (k, &id) in ids.iter().enumerate() {
             let pair = &self.pairs[id];
-            let (windows, mut m) = match self.sampling {
-                Sampling::Resize => ([[0, 0]; 2], pair.matches.clone()),
-                Sampling::Crop => self.crop_windows(pair, rng),
+            let (windows, targets, mut m) = if pair.homography {
+                self.homography_sample(pair.a, rng)
+            } else {
+                self.posed_sample(pair, rng)
             };
-            for (side, frame) in [pair.a, pair.b].into_iter().enumerate() {
-                let f = &self.frames[frame];
-                let [x0, y0] = windows[side];
-                let window = crop(&f.gray, x0, y0, w, h);
+            for (side, (window, targets)) in windows.into_iter().zip(targets).enumerate() {
                 let g = match augment {
                     Some(a) => a.apply(&window, rng)?,
                     None => window,
                 };
                 img[side][k * h * w..(k + 1) * h * w].copy_from_slice(&g.data);
-                for &(x, y) in &f.targets {
-                    let (x, y) = (x.wrapping_sub(x0), y.wrapping_sub(y0));
-                    if x < w && y < h {
-                        tgt[side][k * h * w + y * w + x] = 1.0;
-                    }
+                for (x, y) in targets {
+                    tgt[side][k * h * w + y * w + x] = 1.0;
                 }
             }
             m.shuffle(rng);
@@ -354,7 +386,74 @@ impl FpDataset {
     }
 }
 
+/// The two training images of a pair, their detector targets (window pixels) and matches.
+type PairSample = ([GrayF32; 2], [Vec<(usize, usize)>; 2], Vec<FpMatch>);
+
 impl FpDataset {
+    /// A posed pair's two windows (whole frames when resizing), targets and matches.
+    fn posed_sample(&self, pair: &PairEntry, rng: &mut impl rand::Rng) -> PairSample {
+        let (w, h) = (self.width, self.height);
+        let (windows, m) = match self.sampling {
+            Sampling::Resize => ([[0, 0]; 2], pair.matches.clone()),
+            Sampling::Crop => self.crop_windows(pair, rng),
+        };
+        let side = |frame: usize, [x0, y0]: [usize; 2]| {
+            let f = &self.frames[frame];
+            let targets = f
+                .targets
+                .iter()
+                .map(|&(x, y)| (x.wrapping_sub(x0), y.wrapping_sub(y0)))
+                .filter(|&(x, y)| x < w && y < h)
+                .collect();
+            (crop(&f.gray, x0, y0, w, h), targets)
+        };
+        let (a, ta) = side(pair.a, windows[0]);
+        let (b, tb) = side(pair.b, windows[1]);
+        ([a, b], [ta, tb], m)
+    }
+
+    /// A homography pair of `frame`: a random window A, B = A through a random homography,
+    /// A's Harris corners as A's targets and, mapped, as B's targets and the matches. A few
+    /// windows are tried for one with at least 8 matches.
+    fn homography_sample(&self, frame: usize, rng: &mut impl rand::Rng) -> PairSample {
+        use rand::RngExt;
+        let (w, h) = (self.width, self.height);
+        let f = &self.frames[frame];
+        let mut best: Option<PairSample> = None;
+        for _ in 0..4 {
+            let x0 = rng.random_range(0..=f.gray.width - w);
+            let y0 = rng.random_range(0..=f.gray.height - h);
+            let hm = Homography::random(&self.homography, w, h, rng);
+            let ta: Vec<(usize, usize)> = f
+                .targets
+                .iter()
+                .map(|&(x, y)| (x.wrapping_sub(x0), y.wrapping_sub(y0)))
+                .filter(|&(x, y)| x < w && y < h)
+                .collect();
+            let matches: Vec<FpMatch> = ta
+                .iter()
+                .filter_map(|&(x, y)| {
+                    let a = [x as f32, y as f32];
+                    let b = hm.map(a)?;
+                    inside(b, w, h).then_some(FpMatch { a, b })
+                })
+                .collect();
+            let tb = matches
+                .iter()
+                .map(|m| (m.b[0].round() as usize, m.b[1].round() as usize))
+                .collect();
+            let enough = matches.len() >= 8;
+            if enough || best.as_ref().is_none_or(|b| b.2.len() < matches.len()) {
+                let b = hm.warp(&f.gray, [x0, y0], w, h);
+                best = Some(([crop(&f.gray, x0, y0, w, h), b], [ta, tb], matches));
+            }
+            if enough {
+                break;
+            }
+        }
+        best.expect("four tries")
+    }
+
     /// Crop windows `[x0, y0]` of A and B for one pair, and the pair's matches inside
     /// both, in window pixels. A's window holds a randomly chosen match at a random
     /// place; B's is moved by the median displacement of the matches in A's window
@@ -459,7 +558,9 @@ mod tests {
                 a: 0,
                 b: 1,
                 matches,
+                homography: false,
             }],
+            homography: HomographyConfig::default(),
         }
     }
 
@@ -500,6 +601,7 @@ mod tests {
                     path: path.clone(),
                     camera: "fr1".into(),
                     repeat,
+                    homographies: 0,
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,
@@ -528,6 +630,49 @@ mod tests {
             err.contains("repeat must be at least 1") && err.contains("tum_fr1_rpy_head10"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn homography_pairs_match_exactly_on_the_frame() {
+        use rand::SeedableRng;
+        let (fw, fh) = (160, 120);
+        let mut gray = GrayF32::new(fw, fh);
+        for (i, v) in gray.data.iter_mut().enumerate() {
+            let (x, y) = ((i % fw) as f32, (i / fw) as f32);
+            *v = 0.5 + 0.25 * (x * 0.21).sin() + 0.25 * (y * 0.17 + x * 0.05).cos();
+        }
+        let targets: Vec<(usize, usize)> = (0..200)
+            .map(|k| (3 + (k * 37) % 150, 2 + (k * 13) % 110))
+            .collect();
+        let data = FpDataset {
+            height: 48,
+            width: 64,
+            sampling: Sampling::Crop,
+            frames: vec![FrameEntry { gray, targets }],
+            pairs: vec![PairEntry {
+                a: 0,
+                b: 0,
+                matches: Vec::new(),
+                homography: true,
+            }],
+            homography: HomographyConfig::default(),
+        };
+        #[allow(deprecated)]
+        let device = Device::ndarray();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..10 {
+            let batch = data.batch(&[0], None, 1000, &mut rng, &device).unwrap();
+            let img = |t: Tensor<4>| t.into_data().try_to_vec::<f32>().unwrap();
+            let (ia, ib, tb) = (img(batch.image_a), img(batch.image_b), img(batch.target_b));
+            assert!(batch.matches[0].len() >= 8, "{}", batch.matches[0].len());
+            for m in &batch.matches[0] {
+                let a = ia[m.a[1] as usize * 64 + m.a[0] as usize];
+                let (bx, by) = (m.b[0].round() as usize, m.b[1].round() as usize);
+                // B's target map marks every match; the image agrees up to rounding.
+                assert_eq!(tb[by * 64 + bx], 1.0);
+                assert!((a - ib[by * 64 + bx]).abs() < 0.2, "{m:?}");
+            }
+        }
     }
 
     #[test]

@@ -2,6 +2,7 @@
 
 pub mod data;
 pub mod evaluate;
+pub mod homography;
 pub mod inference;
 pub mod loss;
 mod model;

@@ -9,6 +9,9 @@ use nalgebra::{Matrix2, Point2, Point3, Vector2};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Largest image side a camera may describe: buffers per pixel are allocated from it.
+pub const MAX_SIDE: u32 = 16384;
+
 /// Brown-Conrady lens distortion coefficients (OpenCV order k1, k2, p1, p2, k3).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -196,6 +199,19 @@ impl Camera {
         }
         if self.width == 0 || self.height == 0 {
             return Err("image width and height must be positive".into());
+        }
+        if self.width > MAX_SIDE || self.height > MAX_SIDE {
+            return Err(format!(
+                "image size {}x{} is larger than {MAX_SIDE} pixels a side (a typo?)",
+                self.width, self.height
+            ));
+        }
+        let d = &self.distortion;
+        if [d.k1, d.k2, d.p1, d.p2, d.k3]
+            .iter()
+            .any(|v| !v.is_finite())
+        {
+            return Err("distortion coefficients must be finite numbers".into());
         }
         Ok(())
     }

@@ -87,6 +87,55 @@ fn bad_camera_file_and_checkpoint_fail_before_processing() {
     );
     assert!(!ok);
     assert!(err.contains("cam.toml") && err.contains("cy"), "{err}");
+    // A camera of another size than the images, one of an absurd size, a NaN distortion,
+    // and --out naming a file: errors before processing.
+    for (text, want) in [
+        (
+            "width = 320\nheight = 240\nfx = 258.0\nfy = 258.0\ncx = 160.0\ncy = 120.0\n",
+            "320x240",
+        ),
+        (
+            "width = 64000\nheight = 48000\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n",
+            "64000x48000",
+        ),
+        (
+            "width = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\n[distortion]\nk1 = nan\n",
+            "distortion",
+        ),
+    ] {
+        std::fs::write(&cam, text).unwrap();
+        let (ok, _, err) = slam(
+            &[
+                "--sequence",
+                &fx,
+                "--camera",
+                cam.to_str().unwrap(),
+                "--features",
+                "orb",
+            ],
+            &dir,
+        );
+        assert!(!ok && err.contains(want), "{want}: {err}");
+    }
+    let file = dir.join("a_file");
+    std::fs::write(&file, "x").unwrap();
+    let (ok, _, err) = slam(
+        &[
+            "--sequence",
+            &fx,
+            "--features",
+            "orb",
+            "--labels",
+            "none",
+            "--out",
+            file.to_str().unwrap(),
+        ],
+        &dir,
+    );
+    assert!(
+        !ok && err.contains("a_file") && err.contains("not a folder"),
+        "{err}"
+    );
     // A checkpoint whose weights are not FPFDCNN weights.
     let ckpt = dir.join("ckpt");
     std::fs::create_dir_all(&ckpt).unwrap();

@@ -298,6 +298,12 @@ fn main() -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("runs/slam").join(sequence.name()));
+    if out_dir.exists() && !out_dir.is_dir() {
+        bail!(
+            "--out {} is a file, not a folder: the run's outputs could not be written there",
+            out_dir.display()
+        );
+    }
     let n = cli
         .max_frames
         .map_or(sequence.len(), |m| m.min(sequence.len()));

@@ -9,6 +9,9 @@ use crate::range_matcher::RangeMatcherConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Largest top-down picture side: 8192 px is a 200 MB picture.
+const MAX_TOPDOWN: u32 = 8192;
+
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -495,8 +498,11 @@ impl SlamConfig {
         if self.map.pixel_stride == 0 || self.map.pixel_stride > 64 {
             return Err("map.pixel_stride must be in 1..=64".into());
         }
-        if self.map.topdown_size < 100 {
-            return Err("map.topdown_size must be at least 100 pixels".into());
+        if !(100..=MAX_TOPDOWN).contains(&self.map.topdown_size) {
+            return Err(format!(
+                "map.topdown_size must be 100..={MAX_TOPDOWN} pixels (the picture is allocated \
+                 before it is drawn)"
+            ));
         }
         if !(0.0..=1.0).contains(&self.labels.min_share) {
             return Err("labels.min_share must be in [0, 1]".into());
@@ -555,6 +561,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("map.voxel_size"), "{e}");
+        // A picture side that would overflow or exhaust memory after the whole run.
+        let e = SlamConfig::parse("[map]\ntopdown_size = 200000\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("map.topdown_size") && e.contains("8192"), "{e}");
         for (field, value) in [
             ("fpfdcnn_smoothing", "-1.0"),
             ("fpfdcnn_input_scale", "0.0"),

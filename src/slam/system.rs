@@ -570,6 +570,21 @@ impl Slam {
                 "depth",
             )?;
         }
+        // A camera of another size than the images would map nothing (every pixel outside
+        // the rays it was built for): an error before processing.
+        if let Some(first) = frames.iter().find(|f| f.rgb_path.is_file())
+            && let Ok((w, h)) = image::image_dimensions(&first.rgb_path)
+            && (w, h) != (self.camera.width, self.camera.height)
+        {
+            return Err(Error::invalid(
+                &first.rgb_path,
+                format!(
+                    "image is {w}x{h} but the camera is {}x{}: give the sequence's camera \
+                     (--camera fr1|fr2|fr3|FILE, or a camera.toml in the sequence folder)",
+                    self.camera.width, self.camera.height
+                ),
+            ));
+        }
         Ok(())
     }
 

@@ -42,7 +42,8 @@ pub struct SequenceSource {
     #[serde(default = "default_repeat")]
     pub repeat: usize,
     /// Homography pairs per training frame (0 = none), made afresh in every batch
-    /// ([`super::homography`]); needs `sampling = "crop"`.
+    /// ([`super::homography`]); `repeat` multiplies them like the posed pairs; needs
+    /// `sampling = "crop"`.
     #[serde(default)]
     pub homographies: usize,
 }
@@ -249,6 +250,16 @@ impl FpDataset {
                 .into_par_iter()
                 .map(|i| {
                     let gray = GrayF32::from_gray(&seq.load_gray(i)?);
+                    if (gray.width, gray.height) != (camera.width as usize, camera.height as usize)
+                    {
+                        return Err(Error::invalid(
+                            &seq.frames[i].rgb_path,
+                            format!(
+                                "image is {}x{} but the sequence's camera is {}x{}",
+                                gray.width, gray.height, camera.width, camera.height
+                            ),
+                        ));
+                    }
                     let gray = if crop {
                         gray
                     } else {
@@ -412,9 +423,10 @@ impl FpDataset {
         ([a, b], [ta, tb], m)
     }
 
-    /// A homography pair of `frame`: a random window A, B = A through a random homography,
-    /// A's Harris corners as A's targets and, mapped, as B's targets and the matches. A few
-    /// windows are tried for one with at least 8 matches.
+    /// A homography pair of `frame`: a random window A, B = A through a random homography;
+    /// the frame's Harris corners inside A are A's targets, those the homography takes into
+    /// B are B's targets, and those in both are the matches. A few windows are tried for one
+    /// with at least 8 matches.
     fn homography_sample(&self, frame: usize, rng: &mut impl rand::Rng) -> PairSample {
         use rand::RngExt;
         let (w, h) = (self.width, self.height);
@@ -424,24 +436,25 @@ impl FpDataset {
             let x0 = rng.random_range(0..=f.gray.width - w);
             let y0 = rng.random_range(0..=f.gray.height - h);
             let hm = Homography::random(&self.homography, w, h, rng);
-            let ta: Vec<(usize, usize)> = f
-                .targets
-                .iter()
-                .map(|&(x, y)| (x.wrapping_sub(x0), y.wrapping_sub(y0)))
-                .filter(|&(x, y)| x < w && y < h)
-                .collect();
-            let matches: Vec<FpMatch> = ta
-                .iter()
-                .filter_map(|&(x, y)| {
-                    let a = [x as f32, y as f32];
-                    let b = hm.map(a)?;
-                    inside(b, w, h).then_some(FpMatch { a, b })
-                })
-                .collect();
-            let tb = matches
-                .iter()
-                .map(|m| (m.b[0].round() as usize, m.b[1].round() as usize))
-                .collect();
+            // Every corner of the frame in window-A coordinates (negative outside it), and
+            // where the homography takes it in B (which shows content beyond A's window).
+            let mut ta = Vec::new();
+            let mut tb = Vec::new();
+            let mut matches = Vec::new();
+            for &(x, y) in &f.targets {
+                let a = [x as f32 - x0 as f32, y as f32 - y0 as f32];
+                let in_a = inside(a, w, h);
+                if in_a {
+                    ta.push((a[0] as usize, a[1] as usize));
+                }
+                let Some(b) = hm.map(a).filter(|&b| inside(b, w, h)) else {
+                    continue;
+                };
+                tb.push((b[0].round() as usize, b[1].round() as usize));
+                if in_a {
+                    matches.push(FpMatch { a, b });
+                }
+            }
             let enough = matches.len() >= 8;
             if enough || best.as_ref().is_none_or(|b| b.2.len() < matches.len()) {
                 let b = hm.warp(&f.gray, [x0, y0], w, h);
@@ -630,6 +643,30 @@ mod tests {
             err.contains("repeat must be at least 1") && err.contains("tum_fr1_rpy_head10"),
             "{err}"
         );
+        // A camera that does not describe the frames: an error naming a frame.
+        let dir = std::env::temp_dir().join(format!("sdf_fp_cam_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cam = dir.join("small.toml");
+        crate::camera::Camera::tum_fr1()
+            .resized(320, 240)
+            .save(&cam)
+            .unwrap();
+        let cfg = FpDataConfig {
+            sequences: vec![SequenceSource {
+                path: path.clone(),
+                camera: cam.display().to_string(),
+                repeat: 1,
+                homographies: 0,
+            }],
+            sampling: Sampling::Resize,
+            ..Default::default()
+        };
+        let err = FpDataset::build(&cfg, [120, 160], |_| {})
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("640x480") && err.contains("320x240"), "{err}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

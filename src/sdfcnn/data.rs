@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-use super::focal::{NYU_FX, to_canonical};
+use super::focal::{NYU_FX, nyu_fx_fits, to_canonical};
 use crate::camera::Camera;
 use crate::dataset::augment::{AugmentConfig, SegDepthSample, augment};
 use crate::dataset::labels::VOID;
@@ -291,18 +291,16 @@ fn open_sequence(s: &DataSource) -> Result<Set> {
     let dims = image::image_dimensions(first_rgb)
         .map_err(|e| Error::invalid(first_rgb, format!("cannot read the image size: {e}")))?;
     check_camera(&camera, dims, first_rgb)?;
-    // A source whose depth is all missing would train nothing: an error before training.
-    let valid = frames.par_iter().try_fold(
-        || false,
-        |any, &f| -> Result<bool> {
-            if any {
-                return Ok(true);
-            }
-            Ok(seq.load_depth(f)?.is_some_and(|d| d.valid_fraction() > 0.0))
-        },
-    );
-    let valid: Vec<bool> = valid.collect::<Result<_>>()?;
-    if !valid.iter().any(|&v| v) {
+    // A source whose depth is all missing would train nothing: an error before training
+    // (usually the first frame answers).
+    let mut valid = false;
+    for &f in &frames {
+        if seq.load_depth(f)?.is_some_and(|d| d.valid_fraction() > 0.0) {
+            valid = true;
+            break;
+        }
+    }
+    if !valid {
         return Err(Error::invalid(
             &s.path,
             format!(
@@ -329,15 +327,30 @@ fn open_nyu(s: &DataSource) -> Result<Set> {
     if let Some(scale) = s.depth_scale {
         set.depth_scale = scale;
     }
+    let first = if set.is_empty() {
+        None
+    } else {
+        Some(set.load(0)?.rgb.dimensions())
+    };
     let focal = match source_camera(s)? {
         Some(camera) => {
-            if !set.is_empty() {
-                let rgb = set.load(0)?.rgb;
-                check_camera(&camera, rgb.dimensions(), &set.root)?;
+            if let Some(dims) = first {
+                check_camera(&camera, dims, &set.root)?;
             }
             Focal { fx: camera.fx }
         }
-        None => Focal { fx: NYU_FX },
+        None => {
+            if let Some((w, _)) = first.filter(|&(w, _)| !nyu_fx_fits(w)) {
+                return Err(Error::invalid(
+                    &set.root,
+                    format!(
+                        "images are {w} px wide, not NYUv2's 640 (or a crop of it), and the folder \
+                         has no camera.toml: name their camera (camera = \"fr1\" | FILE)"
+                    ),
+                ));
+            }
+            Focal { fx: NYU_FX }
+        }
     };
     Ok(Set {
         images: Images::Nyu(Box::new(set)),
@@ -365,6 +378,14 @@ impl SegDepthData {
         let mut index = Vec::new();
         for (k, s) in sources.iter().enumerate() {
             s.check()?;
+            if let Some(name) = &s.name
+                && sources[..k].iter().any(|o| o.name.as_ref() == Some(name))
+            {
+                return Err(Error::invalid(
+                    &s.path,
+                    format!("name \"{name}\" is given to two sources (it names their metrics)"),
+                ));
+            }
             let set = if s.is_sequence() {
                 open_sequence(s)?
             } else {
@@ -724,6 +745,30 @@ mod tests {
                 "{what}: {e}"
             );
         }
+
+        // Two sources named alike would overwrite each other's metrics.
+        let named = DataSource {
+            name: Some("tum".into()),
+            ..tum()
+        };
+        let e = SegDepthData::open(&[named.clone(), named]).expect_err("same name twice");
+        assert!(e.to_string().contains("two sources"), "{e}");
+        // A NYU layout at another width than NYUv2's, without a camera.toml.
+        let small = dir.join("small_nyu");
+        std::fs::create_dir_all(&small).expect("dir");
+        image::RgbImage::new(320, 240)
+            .save(small.join("000001_rgb.png"))
+            .expect("rgb");
+        image::GrayImage::new(320, 240)
+            .save(small.join("000001_seg40.png"))
+            .expect("labels");
+        let e = SegDepthData::open(&[DataSource::folder(&small)]).expect_err("no camera");
+        assert!(e.to_string().contains("320 px wide"), "{e}");
+        let ok = DataSource {
+            camera: Some(cam.display().to_string()),
+            ..DataSource::folder(&small)
+        };
+        SegDepthData::open(&[ok]).expect("its camera given");
 
         // A sequence whose depth images hold no valid pixel.
         let seq = dir.join("nodepth");

@@ -225,6 +225,14 @@ pub fn read_network_section(config_path: &Path) -> Result<NetworkConfig> {
         })?,
         None => NetworkConfig::default(),
     };
+    if let Some(f) = net.depth_focal
+        && !(f > 0.05 && f < 20.0)
+    {
+        return Err(Error::invalid(
+            config_path,
+            format!("[network] depth_focal {f} must be a focal length in image widths (0.05..20)"),
+        ));
+    }
     Ok(net)
 }
 

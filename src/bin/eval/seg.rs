@@ -83,9 +83,9 @@ impl EvalData {
     fn open(a: &SegArgs) -> Result<Self> {
         let is_tum = a.data.join("rgb.txt").is_file() || a.data.join("associations.txt").is_file();
         if !is_tum {
-            if a.frames.is_some() {
+            if a.frames.is_some() || a.every != 1 {
                 bail!(
-                    "--frames selects frames of a TUM sequence; {} is a NYU layout",
+                    "--frames and --every select frames of a TUM sequence; {} is a NYU layout",
                     a.data.display()
                 );
             }
@@ -138,6 +138,18 @@ impl EvalData {
                 let f = frames[i];
                 let rgb = seq.load_rgb(f)?;
                 let depth = seq.load_depth(f)?;
+                if let Some(d) = &depth
+                    && (d.width, d.height) != rgb.dimensions()
+                {
+                    bail!(
+                        "{}: depth image is {}x{}, its colour image {}x{}",
+                        seq.frames[f].rgb_path.display(),
+                        d.width,
+                        d.height,
+                        rgb.width(),
+                        rgb.height()
+                    );
+                }
                 let labels =
                     LabelImage::new(rgb.width(), rgb.height(), sdf_slam::dataset::labels::VOID);
                 (format!("frame{f:05}"), rgb, depth, labels)
@@ -166,7 +178,14 @@ impl EvalData {
                 }
                 Ok(c.fx)
             }
-            (None, EvalData::Nyu(_)) => Ok(sdf_slam::sdfcnn::focal::NYU_FX),
+            (None, EvalData::Nyu(_)) if sdf_slam::sdfcnn::focal::nyu_fx_fits(width) => {
+                Ok(sdf_slam::sdfcnn::focal::NYU_FX)
+            }
+            (None, EvalData::Nyu(_)) => bail!(
+                "the images of {} are {width} px wide, not NYUv2's 640 (or a crop of it), and the \
+                 folder has no camera.toml: give their camera with --camera",
+                a.data.display()
+            ),
             (None, EvalData::Tum(..)) => bail!(
                 "{} has no camera.toml: name its camera with --camera fr1|fr2|fr3|FILE",
                 a.data.display()
@@ -198,10 +217,8 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let mut fx = None;
     for i in 0..n {
         let (id, rgb, gt_depth, gt_labels) = data.load(i)?;
-        let fx = match fx {
-            Some(fx) => fx,
-            None => *fx.insert(data.fx(a, rgb.width(), rgb.height())?),
-        };
+        // Per image: a folder may mix sizes (its camera is checked against each).
+        let fx = *fx.insert(data.fx(a, rgb.width(), rgb.height())?);
         if i == 0 {
             predictor.predict(&rgb)?; // warm-up
         }

@@ -112,11 +112,12 @@ fn train_then_eval_seg() {
     assert_eq!(v["images"], 3);
     assert!(v["mpa"].is_null() && v["depth"]["rms"].as_f64().unwrap() > 0.0);
     for (args, want) in [
-        (&[][..], "--camera"),
+        (&[][..], "camera"),
         (
-            &["--camera", "fr1", "--frames", "4", "11"][..],
-            "frames 0..10",
+            &["--camera", "fr1", "--frames", "4", "4"][..],
+            "non-empty range",
         ),
+        (&["--camera", "fr1", "--frames", "4", "11"][..], "10 frames"),
         (
             &["--camera", "configs/cameras/missing.toml"][..],
             "missing.toml",

@@ -151,15 +151,42 @@ enum Images {
     Tum(TumSequence, Vec<usize>),
 }
 
+/// The images of one [`DataSource`] at their own resolution, with their camera's focal
+/// length: what training resamples, and what `eval seg` evaluates.
 #[derive(Debug, Clone)]
-struct Set {
+pub struct Set {
     images: Images,
     focal: Focal,
     name: Option<String>,
 }
 
+/// One image of a [`Set`]: colour, depth in metres (0 = missing) and labels (void where
+/// unlabelled; everywhere for TUM sequences).
+pub type SetItem = (
+    image::RgbImage,
+    Option<crate::dataset::DepthImage>,
+    LabelImage,
+);
+
 impl Set {
-    fn len(&self) -> usize {
+    /// Opens a source (its relative paths as they are; see [`DataSource::resolved`]),
+    /// checking it as [`SegDepthData::open`] does.
+    pub fn open(s: &DataSource) -> Result<Self> {
+        s.check()?;
+        if s.is_sequence() {
+            open_sequence(s)
+        } else {
+            open_nyu(s)
+        }
+    }
+
+    /// The camera's horizontal focal length, pixels.
+    pub fn fx(&self) -> f64 {
+        self.focal.fx
+    }
+
+    /// Number of images.
+    pub fn len(&self) -> usize {
         match &self.images {
             Images::Nyu(d) => d.len(),
             Images::Tum(_, frames) => frames.len(),
@@ -170,6 +197,19 @@ impl Set {
         match &self.images {
             Images::Nyu(d) => &d.root,
             Images::Tum(s, _) => &s.root,
+        }
+    }
+
+    /// Whether there is no image.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Image `j`'s id: the NYU id, or `frameNNNNN` (the index in the sequence).
+    pub fn id(&self, j: usize) -> String {
+        match &self.images {
+            Images::Nyu(d) => d.samples[j].id.clone(),
+            Images::Tum(_, f) => format!("frame{:05}", f[j]),
         }
     }
 
@@ -184,15 +224,8 @@ impl Set {
         format!("{}/{id}", self.root().display())
     }
 
-    /// RGB, depth (metres) and labels of sample `j`.
-    fn load(
-        &self,
-        j: usize,
-    ) -> Result<(
-        image::RgbImage,
-        Option<crate::dataset::DepthImage>,
-        LabelImage,
-    )> {
+    /// RGB, depth (metres) and labels of image `j`.
+    pub fn load(&self, j: usize) -> Result<SetItem> {
         match &self.images {
             Images::Nyu(d) => {
                 let item = d.load(j)?;
@@ -377,7 +410,6 @@ impl SegDepthData {
         let mut sets = Vec::new();
         let mut index = Vec::new();
         for (k, s) in sources.iter().enumerate() {
-            s.check()?;
             if let Some(name) = &s.name
                 && sources[..k].iter().any(|o| o.name.as_ref() == Some(name))
             {
@@ -386,11 +418,7 @@ impl SegDepthData {
                     format!("name \"{name}\" is given to two sources (it names their metrics)"),
                 ));
             }
-            let set = if s.is_sequence() {
-                open_sequence(s)?
-            } else {
-                open_nyu(s)?
-            };
+            let set = Set::open(s)?;
             for _ in 0..s.repeat.unwrap_or(1) {
                 index.extend((0..set.len()).map(|i| (k, i)));
             }

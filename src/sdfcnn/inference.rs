@@ -342,12 +342,21 @@ impl SdfcnnPredictor {
     /// `(fx / width) / depth_focal` ([`super::focal`]). Without `fx`, or for a network without
     /// `depth_focal`, the depth is as predicted.
     pub fn predict_for_camera(&self, rgb: &RgbImage, fx: Option<f64>) -> Result<Prediction> {
-        let mut p = self.predict(rgb)?;
+        Ok(self.predict_timed_for_camera(rgb, fx)?.0)
+    }
+
+    /// [`Self::predict_for_camera`] with the seconds of [`Self::predict_timed`].
+    pub fn predict_timed_for_camera(
+        &self,
+        rgb: &RgbImage,
+        fx: Option<f64>,
+    ) -> Result<(Prediction, f64)> {
+        let (mut p, seconds) = self.predict_timed(rgb)?;
         let k = self.depth_scale_for(fx, rgb.width());
         if k != 1.0 {
             p.depth.data.iter_mut().for_each(|d| *d *= k);
         }
-        Ok(p)
+        Ok((p, seconds))
     }
 
     /// The factor [`Self::predict_for_camera`] applies to the predicted depth.

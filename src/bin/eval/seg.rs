@@ -5,12 +5,11 @@
 //! metric for the data's camera (`--camera`, the folder's `camera.toml`, or NYUv2's camera for
 //! NYU layouts), see `sdf_slam::sdfcnn::focal`.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
-use sdf_slam::camera::Camera;
-use sdf_slam::dataset::{DepthImage, LabelImage, NyuDataset, TumConfig, TumSequence};
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics};
 use sdf_slam::sdfcnn::SdfcnnPredictor;
+use sdf_slam::sdfcnn::data::{DataSource, Set};
 use sdf_slam::sdfcnn::inference::{colorize_depth, colorize_labels, nyu40_names, save_figure};
 use sdf_slam::training::BackendKind;
 use serde_json::json;
@@ -69,141 +68,23 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// The images `eval seg` reads.
-enum EvalData {
-    Nyu(Box<NyuDataset>),
-    /// A TUM sequence's selected frames.
-    Tum(TumSequence, Vec<usize>),
-}
-
-/// One evaluation image: id, colour, depth (metres) and labels (void for TUM frames).
-type EvalItem = (String, image::RgbImage, Option<DepthImage>, LabelImage);
-
-impl EvalData {
-    fn open(a: &SegArgs) -> Result<Self> {
-        let is_tum = a.data.join("rgb.txt").is_file() || a.data.join("associations.txt").is_file();
-        if !is_tum {
-            if a.frames.is_some() || a.every != 1 {
-                bail!(
-                    "--frames and --every select frames of a TUM sequence; {} is a NYU layout",
-                    a.data.display()
-                );
-            }
-            let mut data = NyuDataset::open(&a.data, a.split.as_deref())?;
-            data.depth_scale = a.depth_scale;
-            return Ok(EvalData::Nyu(Box::new(data)));
-        }
-        if a.split.is_some() {
-            bail!(
-                "--split is for NYU layouts; select a sequence's frames with --frames and --every"
-            );
-        }
-        if a.every == 0 {
-            bail!("--every must be at least 1");
-        }
-        let config = TumConfig {
-            depth_scale: a.depth_scale,
-            ..TumConfig::default()
-        };
-        let seq = TumSequence::open_with(&a.data, config)?;
-        let (first, end) = match a.frames.as_deref() {
-            Some(&[f, e]) => (f, e),
-            _ => (0, seq.len()),
-        };
-        if first >= end || end > seq.len() {
-            bail!(
-                "--frames {first} {end}: {} has frames 0..{}",
-                a.data.display(),
-                seq.len()
-            );
-        }
-        let frames = (first..end).step_by(a.every).collect();
-        Ok(EvalData::Tum(seq, frames))
-    }
-
-    fn len(&self) -> usize {
-        match self {
-            EvalData::Nyu(d) => d.len(),
-            EvalData::Tum(_, f) => f.len(),
-        }
-    }
-
-    fn load(&self, i: usize) -> Result<EvalItem> {
-        Ok(match self {
-            EvalData::Nyu(d) => {
-                let item = d.load(i)?;
-                (item.id, item.rgb, item.depth, item.labels)
-            }
-            EvalData::Tum(seq, frames) => {
-                let f = frames[i];
-                let rgb = seq.load_rgb(f)?;
-                let depth = seq.load_depth(f)?;
-                if let Some(d) = &depth
-                    && (d.width, d.height) != rgb.dimensions()
-                {
-                    bail!(
-                        "{}: depth image is {}x{}, its colour image {}x{}",
-                        seq.frames[f].rgb_path.display(),
-                        d.width,
-                        d.height,
-                        rgb.width(),
-                        rgb.height()
-                    );
-                }
-                let labels =
-                    LabelImage::new(rgb.width(), rgb.height(), sdf_slam::dataset::labels::VOID);
-                (format!("frame{f:05}"), rgb, depth, labels)
-            }
-        })
-    }
-
-    /// The data's horizontal focal length in pixels.
-    fn fx(&self, a: &SegArgs, width: u32, height: u32) -> Result<f64> {
-        let camera = match &a.camera {
-            Some(spec) => Some(Camera::load(spec)?),
-            None if a.data.join("camera.toml").is_file() => {
-                Some(Camera::from_file(a.data.join("camera.toml"))?)
-            }
-            None => None,
-        };
-        match (camera, self) {
-            (Some(c), _) => {
-                if (c.width, c.height) != (width, height) {
-                    bail!(
-                        "the camera is {}x{} but the images of {} are {width}x{height}: give their camera with --camera",
-                        c.width,
-                        c.height,
-                        a.data.display()
-                    );
-                }
-                Ok(c.fx)
-            }
-            (None, EvalData::Nyu(_)) if sdf_slam::sdfcnn::focal::nyu_fx_fits(width) => {
-                Ok(sdf_slam::sdfcnn::focal::NYU_FX)
-            }
-            (None, EvalData::Nyu(_)) => bail!(
-                "the images of {} are {width} px wide, not NYUv2's 640 (or a crop of it), and the \
-                 folder has no camera.toml: give their camera with --camera",
-                a.data.display()
-            ),
-            (None, EvalData::Tum(..)) => bail!(
-                "{} has no camera.toml: name its camera with --camera fr1|fr2|fr3|FILE",
-                a.data.display()
-            ),
-        }
-    }
-}
-
-/// An image's fields by name, for the figure code below.
-struct Item {
-    id: String,
-    rgb: image::RgbImage,
-    depth: Option<DepthImage>,
-    labels: LabelImage,
+/// The images of `--data` with their camera, checked as a training source is
+/// (`sdf_slam::sdfcnn::data::Set`).
+fn open_data(a: &SegArgs) -> Result<Set> {
+    let source = DataSource {
+        split: a.split.clone(),
+        depth_scale: Some(a.depth_scale),
+        camera: a.camera.clone(),
+        frames: a.frames.as_deref().map(|f| [f[0], f[1]]),
+        every: (a.every != 1).then_some(a.every),
+        ..DataSource::folder(&a.data)
+    };
+    Ok(Set::open(&source)?)
 }
 
 pub fn run(a: &SegArgs) -> Result<()> {
-    let data = EvalData::open(a)?;
+    let data = open_data(a)?;
+    let fx = data.fx();
     let predictor = SdfcnnPredictor::load(&a.checkpoint, a.backend)?;
     let params = predictor.num_params();
     let classes = predictor.config.num_classes;
@@ -214,42 +95,32 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let mut confusion = ConfusionMatrix::new(classes);
     let mut depth = DepthAccumulator::default();
     let mut times = Vec::with_capacity(n);
-    let mut fx = None;
     for i in 0..n {
-        let (id, rgb, gt_depth, gt_labels) = data.load(i)?;
-        // Per image: a folder may mix sizes (its camera is checked against each).
-        let fx = *fx.insert(data.fx(a, rgb.width(), rgb.height())?);
+        let (rgb, gt_depth, gt_labels) = data.load(i)?;
         if i == 0 {
             predictor.predict(&rgb)?; // warm-up
         }
-        let (mut pred, seconds) = predictor.predict_timed(&rgb)?;
-        let k = predictor.depth_scale_for(Some(fx), rgb.width());
-        pred.depth.data.iter_mut().for_each(|d| *d *= k);
+        let (pred, seconds) = predictor.predict_timed_for_camera(&rgb, Some(fx))?;
         times.push(seconds);
         confusion.add(&gt_labels.data, &pred.labels.data);
         if let Some(d) = &gt_depth {
             depth.add(&d.data, &pred.depth.data);
         }
-        let item = Item {
-            id,
-            rgb,
-            depth: gt_depth,
-            labels: gt_labels,
-        };
         if let Some(out) = &a.out {
+            let id = data.id(i);
             let png = |img: image::RgbImage, suffix: &str| {
                 sdf_slam::imageio::write_png_atomic(
-                    out.join(format!("{}_{suffix}.png", item.id)),
+                    out.join(format!("{id}_{suffix}.png")),
                     &image::DynamicImage::ImageRgb8(img),
                 )
             };
             png(colorize_labels(&pred.labels), "labels")?;
             png(colorize_depth(&pred.depth, None), "depth")?;
             save_figure(
-                out.join(format!("{}_figure.png", item.id)),
-                &item.rgb,
+                out.join(format!("{id}_figure.png")),
+                &rgb,
                 &pred,
-                Some((&item.labels, item.depth.as_ref())),
+                Some((&gt_labels, gt_depth.as_ref())),
             )?;
         }
         eprint!("\r{}/{n} images", i + 1);
@@ -260,7 +131,7 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let labelled = confusion.per_class().iter().any(|c| c.gt_pixels > 0);
     let seg = labelled.then(|| (confusion.mpa(), confusion.miou()));
     print_tables(a, &predictor, n, seg, m, time, params);
-    if let (Some(fx), Some(canonical)) = (fx, predictor.depth_focal) {
+    if let Some(canonical) = predictor.depth_focal {
         println!(
             "Depth made metric for a camera of fx {fx:.1} px (the network predicts it for a focal \
              length of {canonical:.4} image widths; see src/sdfcnn/focal.rs)."

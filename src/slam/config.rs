@@ -272,6 +272,11 @@ pub struct MapConfig {
     /// online fusion stays bounded per keyframe; the final map is re-fused from all final
     /// poses whatever this is (0: no online re-fusion).
     pub refuse_per_keyframe: usize,
+    /// A voxel becomes a map point when at least this many keyframes put an observation
+    /// in it (1: every voxel). Depth that several keyframes agree on, within a voxel, is
+    /// kept; what one keyframe alone saw there (flicker of predicted depth, sensor
+    /// noise at edges) is not.
+    pub min_views: u16,
     /// Write the PLY as ASCII instead of binary little-endian.
     pub ply_ascii: bool,
     /// Side of the top-down picture of the map, pixels.
@@ -286,6 +291,7 @@ impl Default for MapConfig {
             min_depth: 0.1,
             max_depth: 4.0,
             refuse_per_keyframe: 8,
+            min_views: 1,
             ply_ascii: false,
             topdown_size: 1000,
         }
@@ -497,6 +503,9 @@ impl SlamConfig {
         }
         if self.map.pixel_stride == 0 || self.map.pixel_stride > 64 {
             return Err("map.pixel_stride must be in 1..=64".into());
+        }
+        if self.map.min_views == 0 {
+            return Err("map.min_views must be at least 1 (1: every voxel)".into());
         }
         if !(100..=MAX_TOPDOWN).contains(&self.map.topdown_size) {
             return Err(format!(

@@ -157,7 +157,7 @@ pub fn write_outputs(
     let kf_path = dir.join("keyframes.txt");
     out.keyframe_trajectory().write_tum(&kf_path)?;
     outputs.push(kf_path);
-    let points = out.semantic_map.points(&cfg.labels);
+    let points = out.semantic_map.points(&cfg.labels, cfg.map.min_views);
     let ply = dir.join("map.ply");
     write_ply(&ply, &points, cfg.map.ply_ascii)?;
     outputs.push(ply);

@@ -13,7 +13,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use nalgebra::{Point2, Point3, Vector3};
-use rustc_hash::FxHashMap;
+use rustc_hash::{FxHashMap, FxHashSet};
 use std::collections::HashMap;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;
@@ -28,6 +28,8 @@ pub struct Voxel {
     pub votes: [u16; classes::NUM_CLASSES],
     /// Void observations.
     pub void: u16,
+    /// Keyframes with at least one observation in the voxel.
+    pub views: u16,
 }
 
 impl Default for Voxel {
@@ -38,6 +40,7 @@ impl Default for Voxel {
             count: 0,
             votes: [0; classes::NUM_CLASSES],
             void: 0,
+            views: 0,
         }
     }
 }
@@ -193,7 +196,12 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        self.integrate(kf, pose, depth_scale, camera, cfg, Self::insert);
+        let keys = self.integrate(kf, pose, depth_scale, camera, cfg, Self::insert);
+        for key in keys {
+            if let Some(v) = self.voxels.get_mut(&key) {
+                v.views = v.views.saturating_add(1);
+            }
+        }
     }
 
     /// Takes back what [`Self::fuse`] added with the same pose and depth scale (voxel
@@ -206,9 +214,15 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        self.integrate(kf, pose, depth_scale, camera, cfg, Self::remove);
+        let keys = self.integrate(kf, pose, depth_scale, camera, cfg, Self::remove);
+        for key in keys {
+            if let Some(v) = self.voxels.get_mut(&key) {
+                v.views = v.views.saturating_sub(1);
+            }
+        }
     }
 
+    /// Applies `op` to every fused pixel of the keyframe; returns the voxels it touched.
     fn integrate(
         &mut self,
         kf: &KeyFrame,
@@ -217,7 +231,8 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
         mut op: impl FnMut(&mut Self, &Point3<f64>, [u8; 3], u8),
-    ) {
+    ) -> FxHashSet<[i32; 3]> {
+        let mut touched = FxHashSet::default();
         let view = &kf.view;
         let stale = self.rays.as_ref().is_none_or(|r| {
             r.stride != view.stride || (r.width, r.height) != (view.depth.width, view.depth.height)
@@ -226,7 +241,7 @@ impl SemanticMap {
             self.rays = Some(RayTable::new(camera, view.stride));
         }
         let Some(rays) = self.rays.take() else {
-            return;
+            return touched;
         };
         if (rays.width, rays.height) == (view.depth.width, view.depth.height) {
             for (i, ray) in rays.rays.iter().enumerate() {
@@ -235,17 +250,30 @@ impl SemanticMap {
                     continue;
                 }
                 let p = pose * Point3::new(ray[0] * d, ray[1] * d, d);
+                if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+                    continue;
+                }
                 let (x, y) = (i as u32 % rays.width, i as u32 / rays.width);
                 let c = view.rgb.get_pixel(x, y).0;
                 op(self, &p, c, view.labels.data[i]);
+                touched.insert(self.key(&p));
             }
         }
         self.rays = Some(rays);
+        touched
     }
 
-    /// Map points (voxel means), ordered by voxel index so output is deterministic.
-    pub fn points(&self, rules: &LabelVoteConfig) -> Vec<MapPoint> {
-        let mut keys: Vec<&[i32; 3]> = self.voxels.keys().collect();
+    /// Map points (voxel means) of the voxels seen by at least `min_views` keyframes
+    /// (a multi-view consistency check: predicted depth that disagrees across keyframes
+    /// scatters over voxels only one keyframe sees), ordered by voxel index so output is
+    /// deterministic. Voxels filled by [`Self::insert`] alone count as seen once.
+    pub fn points(&self, rules: &LabelVoteConfig, min_views: u16) -> Vec<MapPoint> {
+        let mut keys: Vec<&[i32; 3]> = self
+            .voxels
+            .iter()
+            .filter(|(_, v)| v.views.max(1) >= min_views)
+            .map(|(k, _)| k)
+            .collect();
         keys.sort_unstable();
         keys.into_iter()
             .map(|k| {
@@ -683,7 +711,7 @@ mod tests {
         m.insert(&Point3::new(0.5, 0.5, 0.5), [0, 0, 0], 7);
         assert_eq!(m.len(), 2);
         let rules = LabelVoteConfig::default();
-        let pts = m.points(&rules);
+        let pts = m.points(&rules, 1);
         assert_eq!(pts[0].label, 1, "majority of class votes, void ignored");
         assert_eq!(pts[0].rgb, [20, 30, 40]);
         assert!((pts[0].position.x - 0.038).abs() < 1e-6);
@@ -694,17 +722,17 @@ mod tests {
             min_share: 0.5,
             ..rules.clone()
         };
-        assert_eq!(m.points(&strict)[0].label, classes::VOID);
+        assert_eq!(m.points(&strict, 1)[0].label, classes::VOID);
         let min2 = LabelVoteConfig {
             min_votes: 2,
             ..rules
         };
-        assert_eq!(m.points(&min2)[1].label, classes::VOID);
+        assert_eq!(m.points(&min2, 1)[1].label, classes::VOID);
         // Ties go to the lower class.
         let mut t = SemanticMap::new(1.0);
         t.insert(&p, [0; 3], 5);
         t.insert(&p, [0; 3], 3);
-        assert_eq!(t.points(&LabelVoteConfig::default())[0].label, 3);
+        assert_eq!(t.points(&LabelVoteConfig::default(), 1)[0].label, 3);
         let h = label_histogram(&pts);
         assert_eq!((h[1], h[7], h[40]), (1, 1, 0));
     }
@@ -737,7 +765,7 @@ mod tests {
             all.remove(p, *c, *l);
         }
         let rules = LabelVoteConfig::default();
-        let (a, b) = (all.points(&rules), kept.points(&rules));
+        let (a, b) = (all.points(&rules, 1), kept.points(&rules, 1));
         assert_eq!(a.len(), b.len(), "emptied voxels are removed");
         for (x, y) in a.iter().zip(&b) {
             assert_eq!((x.rgb, x.label), (y.rgb, y.label));
@@ -746,6 +774,56 @@ mod tests {
         // Taking back an observation that was never made changes nothing.
         all.remove(&Point3::new(50.0, 50.0, 50.0), [1, 2, 3], 4);
         assert_eq!(all.len(), b.len());
+    }
+
+    /// A keyframe looking down +z at a wall `depth` metres away.
+    fn wall_keyframe(id: usize, depth: f32) -> KeyFrame {
+        use crate::dataset::{DepthImage, LabelImage};
+        use crate::slam::map::{KeyframeFeatures, KeyframeView};
+        let (w, h) = (32, 24);
+        let mut d = DepthImage::new(w, h);
+        d.data.iter_mut().for_each(|v| *v = depth);
+        let view = KeyframeView::new(
+            1,
+            &image::RgbImage::new(w, h),
+            &d,
+            &LabelImage::new(w, h, 3),
+        );
+        KeyFrame {
+            id,
+            frame_index: id,
+            stamp: id as f64,
+            odom_pose: Pose::identity(),
+            pose: Pose::identity(),
+            gt_pose: None,
+            track: std::sync::Arc::new(KeyframeFeatures::default()),
+            view,
+            depth_scale: 1.0,
+        }
+    }
+
+    #[test]
+    fn map_points_need_min_views_keyframes_and_unfuse_takes_a_view_back() {
+        let camera = Camera::pinhole(32, 24, 30.0, 30.0, 15.5, 11.5);
+        let cfg = MapConfig::default();
+        let rules = LabelVoteConfig::default();
+        let (near, far) = (wall_keyframe(0, 1.0), wall_keyframe(1, 1.5));
+        let mut m = SemanticMap::new(0.02);
+        for k in [&near, &near, &far] {
+            m.fuse(k, &k.pose, 1.0, &camera, &cfg);
+        }
+        let all = m.points(&rules, 1).len();
+        let agreed = m.points(&rules, 2);
+        assert!(!agreed.is_empty() && agreed.len() < all);
+        assert!(
+            agreed.iter().all(|p| (p.position.z - 1.0).abs() < 0.02),
+            "only the wall both views saw"
+        );
+        assert!(m.points(&rules, 3).is_empty());
+        m.unfuse(&near, &near.pose, 1.0, &camera, &cfg);
+        assert!(m.points(&rules, 2).is_empty());
+        assert_eq!(m.points(&rules, 1).len(), all);
+        assert!(m.voxels.values().all(|v| v.views == 1));
     }
 
     #[test]

@@ -47,8 +47,8 @@ struct RunArgs {
     /// Backend (overrides the config's `backend`).
     #[arg(long, value_enum)]
     backend: Option<BackendKind>,
-    /// Number of epochs (overrides the config's `epochs`).
-    #[arg(long)]
+    /// Number of epochs (overrides the config's `epochs`), 1-100000.
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100_000))]
     epochs: Option<usize>,
     /// No progress bar.
     #[arg(long)]

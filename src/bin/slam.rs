@@ -375,5 +375,17 @@ fn main() -> Result<()> {
     write_trajectory(&output, &out_dir)?;
     let report = write_outputs(&output, &sequence, &camera, &config, &out_dir)?;
     println!("{}", report.summary());
+    if output.frames.is_empty() {
+        anyhow::bail!(
+            "no frame of {} could be processed ({} skipped, reasons in {}): no trajectory",
+            sequence.root.display(),
+            output.skipped.len(),
+            out_dir.join("report.md").display()
+        );
+    }
+    if output.interrupted {
+        // The outputs cover the frames processed so far; the exit status says they stop early.
+        std::process::exit(130);
+    }
     Ok(())
 }

@@ -40,6 +40,27 @@ impl Default for AugmentConfig {
 }
 
 impl AugmentConfig {
+    /// Checks the ranges; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !(self.scale_min >= 0.25 && self.scale_min <= self.scale_max && self.scale_max <= 8.0) {
+            return Err(format!(
+                "augment scale_min ({}) and scale_max ({}) must satisfy 0.25 <= scale_min <= \
+                 scale_max <= 8",
+                self.scale_min, self.scale_max
+            ));
+        }
+        for (v, what) in [
+            (self.brightness, "brightness"),
+            (self.contrast, "contrast"),
+            (self.saturation, "saturation"),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("augment {what} must be in [0, 1], got {v}"));
+            }
+        }
+        Ok(())
+    }
+
     /// No augmentation: only the resize to the output size.
     pub fn none() -> Self {
         AugmentConfig {

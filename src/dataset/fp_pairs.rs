@@ -35,6 +35,30 @@ pub struct FpConfig {
     pub keep_unverified: bool,
 }
 
+impl FpConfig {
+    /// Checks the settings; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if self.gaps.is_empty() || self.gaps.iter().any(|&g| g == 0 || g > 10_000) {
+            return Err(format!(
+                "pairs.gaps {:?} must list frame gaps in 1..=10000",
+                self.gaps
+            ));
+        }
+        self.harris.validate().map_err(|m| format!("pairs.{m}"))?;
+        for (v, what) in [
+            (self.depth_tolerance_abs, "depth_tolerance_abs"),
+            (self.depth_tolerance_rel, "depth_tolerance_rel"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!(
+                    "pairs.{what} must be a non-negative number, got {v}"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for FpConfig {
     fn default() -> Self {
         FpConfig {

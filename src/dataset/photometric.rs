@@ -182,6 +182,45 @@ impl Default for PhotometricAugment {
 }
 
 impl PhotometricAugment {
+    /// Checks ranges and probabilities; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        for (r, what) in [
+            (self.brightness, "brightness"),
+            (self.contrast, "contrast"),
+            (self.noise_sigma, "noise_sigma"),
+            (self.gaussian_sigma, "gaussian_sigma"),
+        ] {
+            if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1]) {
+                return Err(format!(
+                    "augment.{what} [{}, {}] must be an ordered pair of numbers",
+                    r[0], r[1]
+                ));
+            }
+        }
+        if self.noise_sigma[0] < 0.0 || self.gaussian_sigma[0] < 0.0 || self.contrast[0] < 0.0 {
+            return Err(
+                "augment.noise_sigma, gaussian_sigma and contrast must not be negative".into(),
+            );
+        }
+        for (p, what) in [
+            (self.gaussian_prob, "gaussian_prob"),
+            (self.motion_prob, "motion_prob"),
+        ] {
+            if !(0.0..=1.0).contains(&p) {
+                return Err(format!(
+                    "augment.{what} must be a probability in [0, 1], got {p}"
+                ));
+            }
+        }
+        let [a, b] = self.motion_kernel;
+        if !(a >= 1 && a <= b && b <= 255) {
+            return Err(format!(
+                "augment.motion_kernel [{a}, {b}] must be an ordered pair of lengths in 1..=255"
+            ));
+        }
+        Ok(())
+    }
+
     /// The degradations of one random draw, in the order they are applied
     /// (blurs before noise, as a camera would).
     pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Result<Vec<Degradation>> {

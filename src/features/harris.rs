@@ -30,6 +30,35 @@ pub struct HarrisConfig {
     pub max_corners: usize,
 }
 
+impl HarrisConfig {
+    /// Checks the settings; the message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !(self.k.is_finite() && self.k > 0.0 && self.k < 0.25) {
+            return Err(format!("harris k must be in (0, 0.25), got {}", self.k));
+        }
+        if !(self.sigma.is_finite() && self.sigma > 0.0 && self.sigma <= 16.0) {
+            return Err(format!(
+                "harris sigma must be in (0, 16] pixels, got {}",
+                self.sigma
+            ));
+        }
+        if !(0.0..1.0).contains(&self.relative_threshold) {
+            return Err(format!(
+                "harris relative_threshold must be in [0, 1), got {}",
+                self.relative_threshold
+            ));
+        }
+        if self.nms_radius > 64 || self.border > 1024 || self.max_corners > 100_000 {
+            return Err(format!(
+                "harris nms_radius ({}) must be at most 64, border ({}) at most 1024 and \
+                 max_corners ({}) at most 100000",
+                self.nms_radius, self.border, self.max_corners
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Default for HarrisConfig {
     fn default() -> Self {
         HarrisConfig {

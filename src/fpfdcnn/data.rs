@@ -90,6 +90,36 @@ pub enum Sampling {
     Resize,
 }
 
+impl FpDataConfig {
+    /// Checks what the config alone decides (the data is checked when it is read); the
+    /// message names the field.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !(0.0..1.0).contains(&self.val_fraction) {
+            return Err(format!(
+                "data.val_fraction must be in [0, 1), got {}",
+                self.val_fraction
+            ));
+        }
+        self.pairs.validate().map_err(|m| format!("data.{m}"))?;
+        self.targets
+            .validate()
+            .map_err(|m| format!("data.targets: {m}"))?;
+        self.augment.validate().map_err(|m| format!("data.{m}"))?;
+        self.homography
+            .validate()
+            .map_err(|m| format!("data.{m}"))?;
+        for s in &self.sequences {
+            if s.repeat == 0 || s.repeat > 1000 || s.homographies > 1000 {
+                return Err(format!(
+                    "data.sequences {}: repeat must be in 1..=1000 and homographies in 0..=1000",
+                    s.path.display()
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for FpDataConfig {
     fn default() -> Self {
         FpDataConfig {

@@ -62,6 +62,48 @@ impl Default for FpfdcnnLossConfig {
     }
 }
 
+impl FpfdcnnLossConfig {
+    /// Checks the weights and the temperature; the message names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        for (v, what) in [
+            (self.detector_weight, "detector_weight"),
+            (self.localization_weight, "localization_weight"),
+            (self.descriptor_weight, "descriptor_weight"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!(
+                    "loss.{what} must be a non-negative number, got {v}"
+                ));
+            }
+        }
+        if !(self.pos_weight.is_finite() && self.pos_weight > 0.0) {
+            return Err(format!(
+                "loss.pos_weight must be a positive number, got {}",
+                self.pos_weight
+            ));
+        }
+        if !(self.tau.is_finite() && self.tau > 0.0) {
+            return Err(format!(
+                "loss.tau (the InfoNCE temperature) must be a positive number, got {}",
+                self.tau
+            ));
+        }
+        if !(self.exclusion_px.is_finite() && self.exclusion_px >= 0.0) {
+            return Err(format!(
+                "loss.exclusion_px must be a non-negative number of pixels, got {}",
+                self.exclusion_px
+            ));
+        }
+        if !(1..=100_000).contains(&self.max_matches) {
+            return Err(format!(
+                "loss.max_matches must be in 1..=100000, got {}",
+                self.max_matches
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Weighted binary cross-entropy of a probability map `[N, 1, H, W]` against a
 /// 0/1 target of the same shape, averaged with the weights.
 pub fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tensor<1> {

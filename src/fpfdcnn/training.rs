@@ -107,6 +107,9 @@ fn default_keep() -> usize {
     3
 }
 
+/// Largest training image side, pixels.
+const MAX_SIDE: usize = 4096;
+
 impl FpfdcnnTrainConfig {
     /// Parses and checks a config; errors name the file and line.
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
@@ -133,6 +136,33 @@ impl FpfdcnnTrainConfig {
         if !positive(cfg.lr) || cfg.lr_steps.iter().any(|s| !positive(s.1)) {
             return bad("learning rates must be positive".into());
         }
+        if cfg.height > MAX_SIDE || cfg.width > MAX_SIDE {
+            return bad(format!(
+                "height x width {}x{} must be at most {MAX_SIDE} pixels a side",
+                cfg.height, cfg.width
+            ));
+        }
+        if cfg.batch_size > 1024 || cfg.epochs > 100_000 || cfg.descriptor_dim == 0 {
+            return bad(format!(
+                "batch_size ({}) must be at most 1024, epochs ({}) at most 100000 and \
+                 descriptor_dim at least 1",
+                cfg.batch_size, cfg.epochs
+            ));
+        }
+        if cfg.descriptor_dim > 4096 {
+            return bad(format!(
+                "descriptor_dim must be at most 4096, got {}",
+                cfg.descriptor_dim
+            ));
+        }
+        if !(cfg.grad_clip_norm.is_finite() && cfg.grad_clip_norm >= 0.0) {
+            return bad(format!(
+                "grad_clip_norm must be a non-negative number (0: off), got {}",
+                cfg.grad_clip_norm
+            ));
+        }
+        cfg.loss.validate().map_err(|m| Error::invalid(path, m))?;
+        cfg.data.validate().map_err(|m| Error::invalid(path, m))?;
         Ok(cfg)
     }
 
@@ -282,6 +312,8 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             .load(ckpt.optimizer_path())
             .map_err(|e| Error::invalid(ckpt.optimizer_path(), e.to_string()))?;
         state = ckpt.state;
+        // A kill between the checkpoint and its metrics line lost nothing: the state has it.
+        state.history.write_csv(run.root.join("metrics.csv"))?;
         log(&format!(
             "  resumed after epoch {} ({})",
             state.epoch,

@@ -236,7 +236,11 @@ impl OptimizerConfig {
         if !(0.0..1.0).contains(&self.momentum) || !(0.0..=1.0).contains(&self.dampening) {
             return Err("optimizer.momentum must be in [0, 1), dampening in [0, 1]".into());
         }
-        if self.weight_decay < 0.0 || self.grad_clip_norm.is_some_and(|c| c <= 0.0) {
+        if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite())
+            || self
+                .grad_clip_norm
+                .is_some_and(|c| !(c > 0.0 && c.is_finite()))
+        {
             return Err("optimizer.weight_decay must be >= 0, grad_clip_norm > 0".into());
         }
         Ok(())
@@ -311,6 +315,24 @@ impl SdfcnnTrainConfig {
         if self.batch_size == 0 {
             return Err("batch_size must be at least 1".into());
         }
+        if !(1..=100_000).contains(&self.epochs) {
+            return Err(format!(
+                "epochs must be in 1..=100000, got {} (0 would train nothing)",
+                self.epochs
+            ));
+        }
+        if self.data.size.iter().any(|&v| v < 16) || self.network.inner_size.iter().any(|&v| v < 32)
+        {
+            return Err(format!(
+                "data.size {:?} must be at least 16 pixels a side and network.inner_size {:?} at \
+                 least 32 (the encoder's stride)",
+                self.data.size, self.network.inner_size
+            ));
+        }
+        self.data
+            .augment
+            .validate()
+            .map_err(|m| format!("data.{m}"))?;
         if self.data.train.is_empty() {
             return Err("[data] train lists no dataset folder".into());
         }
@@ -438,6 +460,8 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
             ck.state.step
         );
         state = ck.state;
+        // metrics.csv as the checkpoint knows it (whatever a kill left there).
+        write_history(&run, &state)?;
     }
     println!(
         "SDFCNN: {} training samples, {} validation samples, {} on {backend}, batch {}, epochs {}..{}",

@@ -88,10 +88,13 @@ impl RunDir {
         let cfg_path = run.root.join("config.toml");
         if resume && cfg_path.is_file() {
             let saved = crate::io::read_text(&cfg_path)?;
-            if without_free_settings(&saved) != without_free_settings(config_toml) {
+            if let Some(diff) = config_difference(&saved, config_toml) {
                 return Err(Error::invalid(
                     &cfg_path,
-                    "--resume with a config that differs from the one this run was started with (only `epochs` and `keep_checkpoints` may change)",
+                    format!(
+                        "--resume with a config that differs from the one this run was started \
+                         with: {diff} (only `epochs`, `keep_checkpoints` and `out` may change)"
+                    ),
                 ));
             }
         }
@@ -188,21 +191,96 @@ impl RunDir {
     }
 }
 
-/// A config without the settings a resumed run may change: the number of epochs and how
-/// many checkpoints are kept (neither changes what the epochs already run computed).
-fn without_free_settings(toml: &str) -> String {
-    toml.lines()
-        .filter(|l| {
-            let key = l.split('=').next().unwrap_or("").trim();
-            key != "epochs" && key != "keep_checkpoints"
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
+/// Settings a resumed run may change: the number of epochs, how many checkpoints are kept,
+/// and where the run folder is (it may have moved, or be named by another spelling); none
+/// changes what the epochs already run computed.
+const FREE_SETTINGS: [&str; 3] = ["epochs", "keep_checkpoints", "out"];
+
+/// The first difference in meaning between two training configs, as `key: saved -> given`,
+/// or `None` when they agree: keys compared as parsed TOML (order, spacing and comments do
+/// not matter), [`FREE_SETTINGS`] ignored, and strings naming an existing file or folder
+/// compared as canonical paths (`runs/x` and `/home/me/runs/x` agree).
+pub fn config_difference(saved: &str, given: &str) -> Option<String> {
+    let parse = |t: &str| t.parse::<toml::Table>().ok();
+    let (Some(mut a), Some(mut b)) = (parse(saved), parse(given)) else {
+        return (saved != given).then(|| "the file (it does not parse as TOML)".to_string());
+    };
+    for key in FREE_SETTINGS {
+        a.remove(key);
+        b.remove(key);
+    }
+    first_difference("", &toml::Value::Table(a), &toml::Value::Table(b))
+}
+
+fn first_difference(key: &str, a: &toml::Value, b: &toml::Value) -> Option<String> {
+    use toml::Value;
+    let named = |k: &str| {
+        if key.is_empty() {
+            k.to_string()
+        } else {
+            format!("{key}.{k}")
+        }
+    };
+    match (a, b) {
+        (Value::Table(x), Value::Table(y)) => {
+            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+            keys.into_iter().find_map(|k| match (x.get(k), y.get(k)) {
+                (Some(u), Some(v)) => first_difference(&named(k), u, v),
+                (Some(u), None) => Some(format!("`{}` = {u} was removed", named(k))),
+                (None, Some(v)) => Some(format!("`{}` = {v} was added", named(k))),
+                (None, None) => None,
+            })
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => x
+            .iter()
+            .zip(y)
+            .enumerate()
+            .find_map(|(i, (u, v))| first_difference(&format!("{key}[{i}]"), u, v)),
+        (Value::String(x), Value::String(y)) if same_path(x, y) => None,
+        _ if a == b => None,
+        _ => Some(format!("`{key}` was {a}, now {b}")),
+    }
+}
+
+/// Whether two strings name the same existing file or folder.
+fn same_path(a: &str, b: &str) -> bool {
+    a == b
+        || matches!(
+            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+            (Ok(x), Ok(y)) if x == y
+        )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn resume_compares_configs_by_meaning_and_names_the_key() {
+        let dir = std::env::temp_dir().join(format!("sdf_cfgdiff_{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("data")).unwrap();
+        let abs = dir.join("data").display().to_string();
+        let rel_spelling = dir.join("data/../data").display().to_string();
+        let saved =
+            format!("out = \"runs/a\"\nepochs = 3\n[data]\npath = \"{abs}\"\nsize = [32, 48]\n");
+        // More epochs, a moved run folder, another spelling of the same data folder,
+        // comments and key order.
+        let given = format!(
+            "# resumed\nepochs = 9\nout = \"/elsewhere/a\"\n\
+             [data]\nsize = [32, 48]\npath = \"{rel_spelling}\"\n"
+        );
+        assert_eq!(config_difference(&saved, &given), None, "{given}");
+        let changed = saved.replace("[32, 48]", "[32, 64]");
+        let d = config_difference(&saved, &changed).unwrap();
+        assert!(
+            d.contains("data.size[1]") && d.contains("48") && d.contains("64"),
+            "{d}"
+        );
+        let added = saved.clone() + "lr = 0.5\n";
+        let d = config_difference(&saved, &added).unwrap();
+        assert!(d.contains("data.lr") && d.contains("added"), "{d}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn save_resume_prune_and_refuse_overwrite() {

@@ -105,6 +105,15 @@ fn normalized<T: serde::Serialize>(cfg: &T, path: &Path) -> Result<Value> {
 fn sdfcnn_check_data(text: &str, path: &Path) -> Result<()> {
     use crate::sdfcnn::data::{DataSource, SegDepthData};
     let cfg = crate::sdfcnn::SdfcnnTrainConfig::parse(text, path)?;
+    if let Some(init) = &cfg.init {
+        let p = crate::sdfcnn::data::resolve(init, path);
+        if !p.exists() {
+            return Err(Error::invalid(
+                path,
+                format!("init {} does not exist", p.display()),
+            ));
+        }
+    }
     for list in [&cfg.data.train, &cfg.data.val] {
         let sources: Vec<DataSource> = list.iter().map(|s| s.resolved(path)).collect();
         SegDepthData::open(&sources)?;
@@ -114,6 +123,10 @@ fn sdfcnn_check_data(text: &str, path: &Path) -> Result<()> {
 
 fn fpfdcnn_check_data(text: &str, path: &Path) -> Result<()> {
     let cfg = crate::fpfdcnn::training::FpfdcnnTrainConfig::parse(text, path)?;
+    if let Some(init) = &cfg.init {
+        crate::nn::weights::resolve_checkpoint(init)
+            .map_err(|e| Error::invalid(path, format!("init: {e}")))?;
+    }
     for s in &cfg.data.sequences {
         crate::dataset::TumSequence::open(&s.path)?;
     }
@@ -1235,7 +1248,8 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
     Ok(())
 }
 
-/// Parses a training config with its trainer's checks (for `train --dry-run`).
+/// Parses a training config with its trainer's checks and opens the data and the `init`
+/// weights it names (for `train --dry-run`).
 pub fn check_training_config(model: &str, path: &Path, text: &str) -> Result<()> {
     let t = trainer(model).ok_or_else(|| {
         Error::invalid(
@@ -1243,7 +1257,8 @@ pub fn check_training_config(model: &str, path: &Path, text: &str) -> Result<()>
             format!("unknown model '{model}' (fpfdcnn, sdfcnn or sweep)"),
         )
     })?;
-    (t.parse)(text, path).map(|_| ())
+    (t.parse)(text, path)?;
+    (t.check_data)(text, path)
 }
 
 #[cfg(test)]

@@ -32,6 +32,13 @@ pub struct RangeMatcherConfig {
     /// Lowe's ratio test: keep a pair when its distance is below `ratio` times the
     /// second-nearest candidate's (a lone candidate passes).
     pub ratio: Option<f32>,
+    /// The ratio test's second-nearest candidate is looked for only among keypoints
+    /// farther than this many pixels from the nearest one (0: every candidate, Lowe's
+    /// test). FPFDCNN's descriptors come from a 16-px cell grid (Table 12) and the
+    /// training loss does not push apart descriptors closer than its `exclusion_px`, so
+    /// two keypoints a few pixels apart carry nearly the same descriptor and the classic
+    /// test rejects both although either is the right place.
+    pub ratio_exclusion_px: f32,
 }
 
 impl Default for RangeMatcherConfig {
@@ -40,6 +47,7 @@ impl Default for RangeMatcherConfig {
             window: 140.0,
             mutual: false,
             ratio: None,
+            ratio_exclusion_px: 0.0,
         }
     }
 }
@@ -134,7 +142,9 @@ fn squared_l2(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// Nearest and second-nearest squared distances of `query` among the window's
-/// candidates (ties to the lower index).
+/// candidates (ties to the lower index). The second-nearest is taken among the
+/// candidates farther than `exclusion` pixels from the nearest one.
+#[allow(clippy::too_many_arguments)]
 fn nearest(
     query: &[f32],
     centre: [f32; 2],
@@ -143,15 +153,22 @@ fn nearest(
     points: &[[f32; 2]],
     desc: &[f32],
     dim: usize,
+    exclusion: f32,
 ) -> Option<(usize, f32, f32)> {
     let mut best: Option<(usize, f32)> = None;
     let mut second = f32::INFINITY;
+    // With an exclusion radius the second-nearest depends on where the nearest is,
+    // known only at the end: keep the candidates.
+    let mut seen: Vec<(usize, f32)> = Vec::new();
     for k in grid.candidates(centre, half) {
         let p = points[k];
         if (p[0] - centre[0]).abs() > half || (p[1] - centre[1]).abs() > half {
             continue;
         }
         let d = squared_l2(query, &desc[k * dim..(k + 1) * dim]);
+        if exclusion > 0.0 {
+            seen.push((k, d));
+        }
         match best {
             Some((bk, bd)) if d > bd || (d == bd && k > bk) => second = second.min(d),
             Some((_, bd)) => {
@@ -161,7 +178,19 @@ fn nearest(
             None => best = Some((k, d)),
         }
     }
-    best.map(|(k, d)| (k, d, second))
+    let (bk, bd) = best?;
+    if exclusion > 0.0 {
+        let (b, r2) = (points[bk], exclusion * exclusion);
+        second = seen
+            .iter()
+            .filter(|&&(k, _)| {
+                let (dx, dy) = (points[k][0] - b[0], points[k][1] - b[1]);
+                dx * dx + dy * dy > r2
+            })
+            .map(|&(_, d)| d)
+            .fold(f32::INFINITY, f32::min);
+    }
+    Some((bk, bd, second))
 }
 
 fn check_inputs(name: &str, points: &[[f32; 2]], desc: &[f32], dim: usize) -> Result<()> {
@@ -311,6 +340,7 @@ pub fn guided_range_match(
         window: f32::MAX,
         mutual: true,
         ratio: Some(guide.ratio),
+        ratio_exclusion_px: cfg.ratio_exclusion_px,
     };
     let putative = range_match(points1, desc1, points2, desc2, dim, &global)?;
     let pairs: Vec<_> = putative
@@ -358,6 +388,12 @@ pub fn range_match(
             "range matcher: ratio must be in (0, 1], got {r}"
         )));
     }
+    if !(cfg.ratio_exclusion_px.is_finite() && cfg.ratio_exclusion_px >= 0.0) {
+        return Err(Error::msg(format!(
+            "range matcher: ratio exclusion radius must be a non-negative number of pixels, got {}",
+            cfg.ratio_exclusion_px
+        )));
+    }
     check_inputs("1", points1, desc1, dim)?;
     check_inputs("2", points2, desc2, dim)?;
     if points1.is_empty() || points2.is_empty() {
@@ -371,7 +407,16 @@ pub fn range_match(
         .into_par_iter()
         .filter_map(|i| {
             let q = &desc1[i * dim..(i + 1) * dim];
-            let (j, d, second) = nearest(q, points1[i], half, &grid2, points2, desc2, dim)?;
+            let (j, d, second) = nearest(
+                q,
+                points1[i],
+                half,
+                &grid2,
+                points2,
+                desc2,
+                dim,
+                cfg.ratio_exclusion_px,
+            )?;
             if let Some(r) = cfg.ratio
                 && d.sqrt() >= r * second.sqrt()
             {
@@ -379,7 +424,7 @@ pub fn range_match(
             }
             if let Some(g1) = &grid1 {
                 let back = &desc2[j * dim..(j + 1) * dim];
-                let (i_back, _, _) = nearest(back, points2[j], half, g1, points1, desc1, dim)?;
+                let (i_back, _, _) = nearest(back, points2[j], half, g1, points1, desc1, dim, 0.0)?;
                 if i_back != i {
                     return None;
                 }
@@ -522,6 +567,47 @@ mod tests {
         // A lone candidate passes the ratio test.
         let lone = range_match(&p1[..1], &d1[..2], &p2[..1], &d2[..2], 2, &strict).unwrap();
         assert_eq!(lone.len(), 1);
+    }
+
+    #[test]
+    fn ratio_exclusion_ignores_near_twins_but_not_far_lookalikes() {
+        // Image-2 keypoints 0 and 1 are 3 px apart with nearly the same descriptor (one
+        // place); keypoint 2 is 60 px away and looks alike too (another place).
+        let p1 = [[100.0, 100.0]];
+        let d1 = [1.0, 0.0];
+        let p2 = [[101.0, 100.0], [104.0, 100.0], [160.0, 100.0]];
+        let d2 = [0.9, 0.0, 0.89, 0.0, -1.0, 0.0];
+        let classic = RangeMatcherConfig {
+            ratio: Some(0.8),
+            ..RangeMatcherConfig::default()
+        };
+        assert!(
+            range_match(&p1, &d1, &p2[..2], &d2[..4], 2, &classic)
+                .unwrap()
+                .is_empty()
+        );
+        let spatial = RangeMatcherConfig {
+            ratio_exclusion_px: 8.0,
+            ..classic.clone()
+        };
+        let m = range_match(&p1, &d1, &p2[..2], &d2[..4], 2, &spatial).unwrap();
+        assert_eq!(m.iter().map(|m| m.j).collect::<Vec<_>>(), vec![0]);
+        // A far look-alike still fails the test.
+        let far = [0.9, 0.0, 0.88, 0.0, 0.89, 0.0];
+        let p2_far = [[101.0, 100.0], [104.0, 100.0], [150.0, 100.0]];
+        assert!(
+            range_match(&p1, &d1, &p2_far, &far, 2, &spatial)
+                .unwrap()
+                .is_empty()
+        );
+        // With the far keypoint distinct, the near twins do not matter.
+        let m = range_match(&p1, &d1, &p2, &d2, 2, &spatial).unwrap();
+        assert_eq!(m.len(), 1);
+        let bad = RangeMatcherConfig {
+            ratio_exclusion_px: f32::NAN,
+            ..spatial
+        };
+        assert!(range_match(&p1, &d1, &p2, &d2, 2, &bad).is_err());
     }
 
     #[test]

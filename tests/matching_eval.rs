@@ -74,8 +74,15 @@ fn cli_defaults_and_bad_options() {
         let v = read();
         assert!(v["fpfdcnn_range"]["clean"]["matches"].as_u64().unwrap() > 10);
         let matcher = v["range_matcher"].as_str().unwrap();
-        assert!(matcher.contains("global affine") && matcher.contains("mutual, ratio 0.8"));
+        assert!(
+            matcher.contains("global affine")
+                && matcher.contains("mutual, ratio 0.7 against the nearest keypoint beyond 8 px"),
+            "{matcher}"
+        );
     }
+    let o = run(&["--orb-only", "--ratio-exclusion=-1"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--ratio-exclusion must be in"));
     let o = run(&["--orb-only", "--ratio", "0"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--ratio must be a positive number"));

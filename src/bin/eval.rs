@@ -5,7 +5,7 @@
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
 //! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT | --orb-only]
-//!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--json FILE]
+//!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--ratio-exclusion PX] [--json FILE]
 //! eval seg --checkpoint DIR_OR_FILE --data DIR [--split FILE] [--backend ndarray|flex]
 //!          [--json FILE] [--out DIR] [--limit N]
 //! ```
@@ -106,8 +106,14 @@ struct MatchingArgs {
     #[arg(long)]
     no_mutual: bool,
     /// Lowe's ratio test in the range matcher (1: off).
-    #[arg(long, default_value_t = 0.8)]
+    #[arg(long, default_value_t = 0.7)]
     ratio: f32,
+    /// The ratio test's second-nearest descriptor is looked for only among keypoints
+    /// farther than this many pixels from the nearest one (0: Lowe's test as it is; 8: the
+    /// training loss's exclusion radius, within which FPFDCNN's descriptors are not pushed
+    /// apart).
+    #[arg(long, default_value_t = 8.0)]
+    ratio_exclusion: f32,
     /// Refine FPFDCNN keypoints to the image corner within this radius (0: off).
     #[arg(long, default_value_t = 0)]
     subpixel: usize,
@@ -206,6 +212,11 @@ fn matching(a: MatchingArgs) -> Result<()> {
         "--ratio must be a positive number (1 turns the test off), got {}",
         a.ratio
     );
+    anyhow::ensure!(
+        (0.0..=256.0).contains(&a.ratio_exclusion),
+        "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
+        a.ratio_exclusion
+    );
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::load(&a.camera)?;
     let weights = match (&a.fpfdcnn, a.orb_only) {
@@ -250,6 +261,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
     cfg.range.window = a.window;
     cfg.range.mutual = !a.no_mutual;
     cfg.range.ratio = (a.ratio < 1.0).then_some(a.ratio);
+    cfg.range.ratio_exclusion_px = a.ratio_exclusion;
     cfg.guide = (!a.window_at_keypoint).then(sdf_slam::range_matcher::GuideConfig::default);
     if let Some(w) = &weights {
         eprintln!("FPFDCNN weights: {}", w.display());

@@ -435,6 +435,12 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
     }
     if let Some(r) = cfg.range.ratio {
         s.push_str(&format!(", ratio {r}"));
+        if cfg.range.ratio_exclusion_px > 0.0 {
+            s.push_str(&format!(
+                " against the nearest keypoint beyond {} px",
+                cfg.range.ratio_exclusion_px
+            ));
+        }
     }
     s
 }

@@ -11,6 +11,8 @@ use std::path::Path;
 
 /// Largest top-down picture side: 8192 px is a 200 MB picture.
 const MAX_TOPDOWN: u32 = 8192;
+/// Most keypoints a frame may keep (`features.top_k`).
+const MAX_KEYPOINTS: usize = 100_000;
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -116,6 +118,9 @@ pub struct MatcherConfig {
     pub mutual: bool,
     /// Lowe ratio (0: off).
     pub ratio: f32,
+    /// The ratio tests' second-nearest candidate is taken among keypoints farther than
+    /// this from the nearest one, pixels (0: Lowe's test as it is).
+    pub ratio_exclusion_px: f32,
     /// Window for relocalisation and keyframe-pair verification when the
     /// guided match fails, pixels (the whole image at 640x480: 1300).
     pub wide_window: f32,
@@ -130,6 +135,7 @@ impl Default for MatcherConfig {
             predict_window: true,
             mutual: true,
             ratio: 0.0,
+            ratio_exclusion_px: 0.0,
             wide_window: 1300.0,
             wide_ratio: 0.9,
         }
@@ -142,6 +148,7 @@ impl MatcherConfig {
             window: self.window,
             mutual: self.mutual,
             ratio: (self.ratio > 0.0).then_some(self.ratio),
+            ratio_exclusion_px: self.ratio_exclusion_px,
         }
     }
 
@@ -150,6 +157,7 @@ impl MatcherConfig {
             window: self.wide_window,
             mutual: self.mutual,
             ratio: (self.wide_ratio > 0.0).then_some(self.wide_ratio),
+            ratio_exclusion_px: self.ratio_exclusion_px,
         }
     }
 }
@@ -277,6 +285,12 @@ pub struct MapConfig {
     /// kept; what one keyframe alone saw there (flicker of predicted depth, sensor
     /// noise at edges) is not.
     pub min_views: u16,
+    /// Depth edges ([`super::depth_edges`]): a pixel where the second difference of inverse
+    /// depth over `depth_edge_reach` pixels (full resolution, along x or y), times its
+    /// depth, exceeds `depth_edge_ratio` is not fused (0: every pixel). Planes, slanted or
+    /// not, score 0.
+    pub depth_edge_ratio: f32,
+    pub depth_edge_reach: u32,
     /// Write the PLY as ASCII instead of binary little-endian.
     pub ply_ascii: bool,
     /// Side of the top-down picture of the map, pixels.
@@ -291,7 +305,9 @@ impl Default for MapConfig {
             min_depth: 0.1,
             max_depth: 4.0,
             refuse_per_keyframe: 8,
-            min_views: 1,
+            min_views: 3,
+            depth_edge_ratio: 0.02,
+            depth_edge_reach: 8,
             ply_ascii: false,
             topdown_size: 1000,
         }
@@ -459,8 +475,92 @@ impl SlamConfig {
                 Err(format!("{name} must be a positive number, got {v}"))
             }
         };
-        if self.features.top_k == 0 {
-            return Err("features.top_k must be at least 1".into());
+        // Counts that size allocations or loops: bounded before anything runs.
+        let count =
+            |v: usize, lo: usize, hi: usize, name: &str| -> std::result::Result<(), String> {
+                if (lo..=hi).contains(&v) {
+                    Ok(())
+                } else {
+                    Err(format!("{name} must be in {lo}..={hi}, got {v}"))
+                }
+            };
+        count(self.features.top_k, 1, MAX_KEYPOINTS, "features.top_k")?;
+        count(self.features.orb_levels, 1, 16, "features.orb_levels")?;
+        if !(self.features.orb_scale_factor > 1.0 && self.features.orb_scale_factor <= 4.0) {
+            return Err(format!(
+                "features.orb_scale_factor must be in (1, 4] (each pyramid level this much \
+                 smaller), got {}",
+                self.features.orb_scale_factor
+            ));
+        }
+        count(
+            self.features.fpfdcnn_nms_radius,
+            0,
+            64,
+            "features.fpfdcnn_nms_radius",
+        )?;
+        count(
+            self.features.fpfdcnn_border,
+            0,
+            256,
+            "features.fpfdcnn_border",
+        )?;
+        count(
+            self.features.fpfdcnn_subpixel_radius,
+            0,
+            8,
+            "features.fpfdcnn_subpixel_radius",
+        )?;
+        count(self.pnp.max_iterations, 1, 1_000_000, "pnp.max_iterations")?;
+        count(
+            self.pnp.refine_iterations,
+            0,
+            10_000,
+            "pnp.refine_iterations",
+        )?;
+        count(
+            self.tracking.relocalisation_candidates,
+            0,
+            1000,
+            "tracking.relocalisation_candidates",
+        )?;
+        count(
+            self.keyframes.max_frames,
+            1,
+            1_000_000,
+            "keyframes.max_frames",
+        )?;
+        for (v, name) in [
+            (self.correction.random_pairs, "correction.random_pairs"),
+            (
+                self.correction.proximity_pairs,
+                "correction.proximity_pairs",
+            ),
+            (
+                self.correction.similarity_pairs,
+                "correction.similarity_pairs",
+            ),
+        ] {
+            count(v, 0, 1000, name)?;
+        }
+        count(
+            self.correction.lm_iterations,
+            0,
+            10_000,
+            "correction.lm_iterations",
+        )?;
+        count(self.system.queue, 1, 1024, "system.queue")?;
+        count(
+            self.system.max_eval_points,
+            1,
+            100_000_000,
+            "system.max_eval_points",
+        )?;
+        if !(-1.0..=1.0).contains(&self.correction.min_similarity) {
+            return Err(format!(
+                "correction.min_similarity must be a cosine in [-1, 1], got {}",
+                self.correction.min_similarity
+            ));
         }
         // The FPFDCNN fields, named as in this file.
         self.features
@@ -476,6 +576,12 @@ impl SlamConfig {
             if !(0.0..=1.0).contains(&r) {
                 return Err(format!("{name} must be in [0, 1] (0: off), got {r}"));
             }
+        }
+        if !(0.0..=256.0).contains(&self.matcher.ratio_exclusion_px) {
+            return Err(format!(
+                "matcher.ratio_exclusion_px must be in [0, 256] pixels, got {}",
+                self.matcher.ratio_exclusion_px
+            ));
         }
         pos(self.pnp.threshold_px, "pnp.threshold_px")?;
         if !(self.pnp.confidence > 0.0 && self.pnp.confidence < 1.0) {
@@ -503,6 +609,13 @@ impl SlamConfig {
         }
         if self.map.pixel_stride == 0 || self.map.pixel_stride > 64 {
             return Err("map.pixel_stride must be in 1..=64".into());
+        }
+        if !(0.0..=10.0).contains(&self.map.depth_edge_ratio) || self.map.depth_edge_reach > 64 {
+            return Err(format!(
+                "map.depth_edge_ratio must be in [0, 10] (0: off) and map.depth_edge_reach in \
+                 0..=64 pixels, got {} and {}",
+                self.map.depth_edge_ratio, self.map.depth_edge_reach
+            ));
         }
         if self.map.min_views == 0 {
             return Err("map.min_views must be at least 1 (1: every voxel)".into());
@@ -545,9 +658,6 @@ impl SlamConfig {
         if self.correction.min_id_gap == 0 {
             return Err("correction.min_id_gap must be at least 1".into());
         }
-        if self.system.queue == 0 {
-            return Err("system.queue must be at least 1".into());
-        }
         pos(self.system.position_tolerance, "system.position_tolerance")?;
         Ok(())
     }
@@ -584,6 +694,27 @@ mod tests {
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(&format!("features.{field} must be")), "{e}");
+        }
+        // Values that were accepted and made the run silently useless.
+        for (section, field, value) in [
+            ("features", "orb_levels", "0"),
+            ("features", "orb_scale_factor", "1.0"),
+            ("features", "orb_scale_factor", "0.5"),
+            ("features", "orb_scale_factor", "nan"),
+            ("features", "top_k", "100000000"),
+            ("pnp", "max_iterations", "0"),
+            ("system", "queue", "0"),
+            ("map", "min_views", "0"),
+            ("correction", "min_similarity", "nan"),
+        ] {
+            let text = format!("[{section}]\n{field} = {value}\n");
+            let e = SlamConfig::parse(&text, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("c.toml") && e.contains(&format!("{section}.{field} must be")),
+                "{text}: {e}"
+            );
         }
         let shipped = include_str!("../../configs/slam.toml");
         assert_eq!(

@@ -18,6 +18,7 @@ pub mod classes;
 pub mod config;
 pub mod correction;
 pub mod defaults;
+pub mod depth_edges;
 pub mod keypoints;
 pub mod map;
 pub mod pose_graph;

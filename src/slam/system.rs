@@ -8,6 +8,7 @@
 
 use super::config::SlamConfig;
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
+use super::depth_edges::drop_depth_edges;
 use super::keypoints::KeypointSource;
 use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
 use super::semantic_map::SemanticMap;
@@ -310,6 +311,12 @@ impl LocalMapper {
         } else {
             kf.track.clone()
         };
+        let mut depth = depth;
+        drop_depth_edges(
+            &mut depth,
+            self.cfg.map.depth_edge_reach,
+            self.cfg.map.depth_edge_ratio,
+        );
         let view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
         {
             let mut m = write(&self.map);

@@ -8,6 +8,9 @@ use nalgebra::Point3;
 use std::io::Write;
 use std::path::Path;
 
+/// Largest coordinate a trajectory file may hold, metres (a planet's worth).
+pub const MAX_POSITION: f64 = 1e7;
+
 /// A trajectory: strictly increasing timestamps (seconds) and poses.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
@@ -108,6 +111,17 @@ impl Trajectory {
             let mut v = [0.0; 8];
             for k in 0..8 {
                 v[k] = parse_f64(path, rec.line, NAMES[k], f[k])?;
+            }
+            // Squares of larger positions overflow (ATE would be inf or 0).
+            if let Some(k) = (1..4).find(|&k| v[k].abs() > MAX_POSITION) {
+                return Err(Error::parse(
+                    path,
+                    rec.line,
+                    format!(
+                        "{} = {} m is out of range (|position| at most {MAX_POSITION:e} m)",
+                        NAMES[k], f[k]
+                    ),
+                ));
             }
             let pose = pose_from_tum([v[1], v[2], v[3]], [v[4], v[5], v[6], v[7]])
                 .ok_or_else(|| Error::parse(path, rec.line, "quaternion is zero"))?;

@@ -8,7 +8,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{Alignment, ape};
-use sdf_slam::slam::report::{write_outputs, write_trajectory};
+use sdf_slam::slam::report::{MapAccuracy, write_outputs, write_trajectory};
 use sdf_slam::slam::semantic_map::read_ply;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
@@ -341,6 +341,66 @@ fn synthetic_monocular_with_depth_from_the_semantic_source() {
     let e = ate(&out, &seq, Alignment::Sim3);
     assert!(e < 0.025, "ATE {e}");
     assert!(out.semantic_map.len() > 1000);
+}
+
+/// Ground-truth labels and depth, the depth wrong by a slant across the image (8 % too
+/// near at the left edge, 8 % too far at the right), as a network's error often is.
+struct SlantedDepth(GroundTruthSource);
+
+impl SemanticSource for SlantedDepth {
+    fn name(&self) -> &'static str {
+        "slanted ground truth"
+    }
+    fn provides_depth(&self) -> bool {
+        true
+    }
+    fn predict(
+        &self,
+        input: &sdf_slam::slam::SemanticInput<'_>,
+    ) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
+        let (labels, depth) = self.0.predict(input)?;
+        let depth = depth.map(|mut d| {
+            let w = d.width as usize;
+            for (i, v) in d.data.iter_mut().enumerate() {
+                *v *= 1.0 + 0.16 * ((i % w) as f32 / w as f32 - 0.5);
+            }
+            d
+        });
+        Ok((labels, depth))
+    }
+}
+
+#[test]
+fn monocular_multiview_depth_makes_keyframes_agree_despite_a_slanted_prediction() {
+    let seq = box_room();
+    let run = |references: usize| {
+        let mut cfg = config(false);
+        cfg.multiview.references = references;
+        let mut system = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
+        system.semantics = Box::new(SlantedDepth(GroundTruthSource::open(&seq, 5000.0).unwrap()));
+        let out = system.run(quiet()).unwrap();
+        let dir = tmp_dir(&format!("box_multiview_{references}"));
+        let sequence = TumSequence::open(&seq).unwrap();
+        let report = write_outputs(&out, &sequence, &box_camera(), &cfg, &dir).unwrap();
+        (
+            out.multiview,
+            report.map_accuracy.expect("ground truth gives Table 11"),
+        )
+    };
+    let (none, off) = run(0);
+    let (sweep, on) = run(3);
+    assert_eq!(none.candidates, 0);
+    // Measured: 61,943 of 103,559 candidate pixels.
+    assert!(sweep.confirmed > sweep.candidates / 3, "{sweep:?}");
+    // Measured: without, the keyframes disagree by the slant and few voxels get the three
+    // views a map point needs (385 evaluated, 48.3 % within 5 cm); with, they agree (3,261
+    // evaluated, 51.3 % within 5 cm): nine times as many map points on the surface.
+    let within = |a: &MapAccuracy| a.position_accuracy * a.evaluated_points as f64;
+    assert!(within(&on) > 4.0 * within(&off), "off {off:?}\non {on:?}");
+    assert!(
+        on.position_accuracy > off.position_accuracy - 0.02,
+        "off {off:?}\non {on:?}"
+    );
 }
 
 #[test]

@@ -35,7 +35,13 @@ pub fn save_atomic<M: Module>(module: M, path: &Path) -> Result<()> {
         let _ = std::fs::remove_file(&tmp);
         return Err(Error::invalid(path, format!("cannot save weights: {e}")));
     }
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    let synced = std::fs::File::open(&tmp).and_then(|f| f.sync_all());
+    if let Err(e) = synced {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+    crate::io::sync_parent(path).map_err(|e| Error::io(path, e))
 }
 
 /// Loads weights saved in any float precision into `module` (converted to the
@@ -43,7 +49,7 @@ pub fn save_atomic<M: Module>(module: M, path: &Path) -> Result<()> {
 pub fn load_into<M: Module>(module: M, path: &Path, what: &str, config: &Path) -> Result<M> {
     let record = burn::store::ModuleRecord::load(path)
         .map_err(|e| Error::invalid(path, format!("cannot read weights: {e}")))?;
-    module
+    let module = module
         .try_load_record(record.cast_to_module_dtype())
         .map_err(|e| {
             Error::invalid(
@@ -53,7 +59,59 @@ pub fn load_into<M: Module>(module: M, path: &Path, what: &str, config: &Path) -
                     config.display()
                 ),
             )
-        })
+        })?;
+    check_finite_weights(&module, path)?;
+    Ok(module)
+}
+
+/// Refuses weights holding a NaN or an infinity (a training run that diverged, a damaged
+/// file): the error names the file and the first tensors, by module path.
+pub fn check_finite_weights<M: Module>(module: &M, path: &Path) -> Result<()> {
+    struct Check {
+        stack: Vec<String>,
+        bad: Vec<String>,
+    }
+    impl burn::module::ModuleVisitor for Check {
+        fn enter_module(&mut self, name: &str, _container_type: &str) {
+            self.stack.push(name.to_string());
+        }
+        fn exit_module(&mut self, _name: &str, _container_type: &str) {
+            self.stack.pop();
+        }
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let finite = param
+                .val()
+                .into_data()
+                .convert_dtype(DType::F32)
+                .iter::<f32>()
+                .all(f32::is_finite);
+            if !finite {
+                self.bad.push(self.stack.join("."));
+            }
+        }
+    }
+    let mut check = Check {
+        stack: Vec::new(),
+        bad: Vec::new(),
+    };
+    module.visit(&mut check);
+    if check.bad.is_empty() {
+        return Ok(());
+    }
+    let shown: Vec<&str> = check.bad.iter().take(5).map(String::as_str).collect();
+    Err(Error::invalid(
+        path,
+        format!(
+            "{} weight tensors hold NaN or infinite values ({}{}): the weights are unusable",
+            check.bad.len(),
+            shown.join(", "),
+            if check.bad.len() > shown.len() {
+                ", ..."
+            } else {
+                ""
+            }
+        ),
+    ))
 }
 
 /// The weights file and training config of a checkpoint given as a `model.bpk`
@@ -193,6 +251,25 @@ mod tests {
             weight: Param::from_tensor(Tensor::from_data(weight, &device)),
             bias: Some(Param::from_tensor(Tensor::from_data(bias, &device))),
         }
+    }
+
+    #[test]
+    fn non_finite_weights_are_refused_naming_the_tensor() {
+        let good = linear([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], [1.0, -1.0]);
+        check_finite_weights(&good, Path::new("w.bpk")).unwrap();
+        let bad = linear([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], [f32::NAN, -1.0]);
+        let e = check_finite_weights(&bad, Path::new("w.bpk"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("w.bpk") && e.contains("1 weight tensors") && e.contains("bias"),
+            "{e}"
+        );
+        let inf = linear([[f32::INFINITY, 2.0], [3.0, 4.0], [5.0, 6.0]], [1.0, -1.0]);
+        let e = check_finite_weights(&inf, Path::new("w.bpk"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("weight"), "{e}");
     }
 
     #[test]

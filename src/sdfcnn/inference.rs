@@ -150,7 +150,7 @@ pub fn save_figure(
 pub fn load_weights(model: Sdfcnn, model_path: &Path, config_path: &Path) -> Result<Sdfcnn> {
     let record = ModuleRecord::load(model_path)
         .map_err(|e| Error::invalid(model_path, format!("cannot read the checkpoint: {e}")))?;
-    model
+    let model = model
         .try_load_record(record.cast_to_module_dtype())
         .map_err(|e| {
             Error::invalid(
@@ -160,7 +160,9 @@ pub fn load_weights(model: Sdfcnn, model_path: &Path, config_path: &Path) -> Res
                     config_path.display()
                 ),
             )
-        })
+        })?;
+    crate::nn::weights::check_finite_weights(&model, model_path)?;
+    Ok(model)
 }
 
 /// Locates `model.bpk` and its `config.toml` from a file, checkpoint folder or run folder.

@@ -21,6 +21,7 @@ pub mod defaults;
 pub mod depth_edges;
 pub mod keypoints;
 pub mod map;
+pub mod multiview_depth;
 pub mod pose_graph;
 pub mod report;
 pub mod semantic_map;

@@ -132,6 +132,9 @@ pub struct Report {
     pub semantic_failures: Vec<(usize, String)>,
     pub correction: super::correction::CorrectionStats,
     pub local_correction: super::correction::LocalSummary,
+    /// Multi-view depth of monocular keyframes (zero in RGB-D mode).
+    #[serde(default)]
+    pub multiview: super::multiview_depth::SweepSummary,
     pub outputs: Vec<PathBuf>,
 }
 
@@ -331,6 +334,7 @@ pub fn write_outputs(
         semantic_failures: out.semantic_failures.clone(),
         correction: out.correction.clone(),
         local_correction: out.local.clone(),
+        multiview: out.multiview,
         outputs: Vec::new(),
     };
     let json_path = dir.join("report.json");
@@ -681,6 +685,16 @@ impl Report {
             self.local_correction.min_scale,
             self.local_correction.max_scale
         );
+        if self.multiview.candidates > 0 {
+            let m = &self.multiview;
+            let _ = writeln!(
+                s,
+                "\nMulti-view depth: {} of {} keyframe pixels with texture and parallax measured ({:.1} %), the rest keep SDFCNN's prediction or are dropped (`multiview.keep_unconfirmed`).",
+                m.confirmed,
+                m.candidates,
+                100.0 * m.confirmed as f64 / m.candidates as f64
+            );
+        }
         let _ = writeln!(s, "\n## Files\n");
         for p in &self.outputs {
             let _ = writeln!(s, "- `{}`", p.display());

@@ -11,6 +11,9 @@ use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correcti
 use super::depth_edges::drop_depth_edges;
 use super::keypoints::KeypointSource;
 use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
+use super::multiview_depth::{
+    GrayView, SweepReference, SweepSettings, SweepSummary, merge_measured, sweep_depth,
+};
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
 use super::tracking::{
@@ -23,8 +26,9 @@ use crate::features::orb::rgb_to_gray;
 use crate::geometry::{Pose, renormalized};
 use crate::trajectory::Trajectory;
 use image::RgbImage;
-use nalgebra::Point3;
+use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, sync_channel};
 use std::sync::{Arc, RwLock};
@@ -83,6 +87,8 @@ pub struct Timings {
     pub tracking: StageTime,
     /// Semantic source (SDFCNN) per keyframe.
     pub semantics: StageTime,
+    /// Multi-view depth of monocular keyframes.
+    pub multiview: StageTime,
     /// Fusion into the voxel map (including re-fusions).
     pub fusion: StageTime,
     /// Keyframe-pair verification.
@@ -95,12 +101,13 @@ pub struct Timings {
 
 impl Timings {
     /// `(name, time)` of every stage.
-    pub fn stages(&self) -> [(&'static str, StageTime); 8] {
+    pub fn stages(&self) -> [(&'static str, StageTime); 9] {
         [
             ("load", self.load),
             ("features", self.features),
             ("tracking", self.tracking),
             ("semantics", self.semantics),
+            ("multiview", self.multiview),
             ("fusion", self.fusion),
             ("correction", self.correction),
             ("optimisation", self.optimisation),
@@ -160,6 +167,8 @@ pub struct SlamOutput {
     /// Unified world points of local correction.
     pub landmarks: Vec<Point3<f64>>,
     pub local: LocalSummary,
+    /// Multi-view depth of monocular keyframes, summed over keyframes.
+    pub multiview: SweepSummary,
     pub tracking: TrackingCounters,
     pub correction: CorrectionStats,
     /// Frames that could not be read, with the reason.
@@ -239,6 +248,11 @@ pub struct LocalMapper {
     fused: Vec<(Pose, f64)>,
     pub failures: Vec<(usize, String)>,
     pub semantics_time: StageTime,
+    pub multiview_time: StageTime,
+    pub multiview: SweepSummary,
+    /// Full-resolution grey images of the last `multiview.look_back` keyframes (monocular
+    /// mode) with their index in the map: the references of multi-view depth.
+    recent: VecDeque<(usize, Arc<GrayView>)>,
     pub fusion_time: StageTime,
 }
 
@@ -264,6 +278,9 @@ impl LocalMapper {
             fused: Vec::new(),
             failures: Vec::new(),
             semantics_time: StageTime::default(),
+            multiview_time: StageTime::default(),
+            multiview: SweepSummary::default(),
+            recent: VecDeque::new(),
             fusion_time: StageTime::default(),
         }
     }
@@ -294,37 +311,48 @@ impl LocalMapper {
             }
         };
         self.semantics_time.add(t);
-        let t = Instant::now();
         let depth = if self.monocular {
             predicted
         } else {
             input.depth
         };
-        let depth = depth.unwrap_or_else(|| DepthImage::new(w, h));
-        let track = if self.monocular {
-            Arc::new(KeyframeFeatures::new(
+        let mut depth = depth.unwrap_or_else(|| DepthImage::new(w, h));
+        // Monocular: the keypoints' 3D points come from the predicted depth.
+        let mut own_track = self.monocular.then(|| {
+            KeyframeFeatures::new(
                 kf.track.features.clone(),
                 Some(&depth),
                 &self.camera,
                 (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth),
-            ))
-        } else {
-            kf.track.clone()
-        };
-        let mut depth = depth;
+            )
+        });
         drop_depth_edges(
             &mut depth,
             self.cfg.map.depth_edge_reach,
             self.cfg.map.depth_edge_ratio,
         );
-        let view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
+        let mut view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
+        let mut gray = None;
+        if let Some(track) = own_track.as_mut()
+            && self.cfg.multiview.references > 0
+        {
+            let t = Instant::now();
+            let g = Arc::new(GrayView::from_rgb(&input.rgb));
+            self.measure_depth(&kf.pose, &g, &mut view, track);
+            gray = Some(g);
+            self.multiview_time.add(t);
+        }
+        let track = own_track.map_or_else(|| kf.track.clone(), Arc::new);
+        let t = Instant::now();
         {
             let mut m = write(&self.map);
-            // Follow the corrections made so far.
-            let pose = match m.keyframes.last() {
-                Some(last) => renormalized(&(last.pose * last.odom_pose.inverse() * kf.pose)),
-                None => kf.pose,
-            };
+            let pose = corrected_pose(&m, &kf.pose);
+            if let Some(g) = gray {
+                self.recent.push_back((m.keyframes.len(), g));
+                if self.recent.len() > self.cfg.multiview.look_back {
+                    self.recent.pop_front();
+                }
+            }
             m.keyframes.push(KeyFrame {
                 id: kf.id,
                 frame_index: kf.frame_index,
@@ -348,6 +376,84 @@ impl LocalMapper {
         self.refuse_moved(self.cfg.map.refuse_per_keyframe);
         self.fusion_time.add(t);
         track
+    }
+
+    /// Measures the depth of a monocular keyframe's view against earlier keyframes
+    /// ([`super::multiview_depth`]); measured pixels replace the prediction, in the view and
+    /// (with `multiview.keypoints`) at the keypoints.
+    fn measure_depth(
+        &mut self,
+        odom_pose: &Pose,
+        gray: &GrayView,
+        view: &mut KeyframeView,
+        track: &mut KeyframeFeatures,
+    ) {
+        let mv = &self.cfg.multiview;
+        let (pose, refs) = {
+            let m = read(&self.map);
+            let pose = corrected_pose(&m, odom_pose);
+            let axis = pose.rotation * Vector3::z();
+            let mut near: Vec<(f64, Arc<GrayView>, Pose)> = self
+                .recent
+                .iter()
+                .filter_map(|(i, g)| {
+                    let k = m.keyframes.get(*i)?;
+                    let baseline = (k.pose.translation.vector - pose.translation.vector).norm();
+                    let angle = (k.pose.rotation * Vector3::z()).angle(&axis).to_degrees();
+                    (baseline >= mv.min_baseline && angle <= mv.max_angle_deg)
+                        .then(|| (baseline, g.clone(), k.pose))
+                })
+                .collect();
+            // The widest baselines first: depth from parallax is more precise.
+            near.sort_by(|a, b| b.0.total_cmp(&a.0));
+            near.truncate(mv.references);
+            (pose, near)
+        };
+        if refs.is_empty() {
+            return;
+        }
+        let references: Vec<SweepReference> = refs
+            .iter()
+            .map(|(_, image, pose)| SweepReference { image, pose: *pose })
+            .collect();
+        let stride = view.stride;
+        let (measured, summary) = sweep_depth(
+            gray,
+            &pose,
+            &view.depth,
+            &references,
+            &self.camera,
+            stride,
+            &SweepSettings::from_config(mv),
+        );
+        self.multiview.candidates += summary.candidates;
+        self.multiview.confirmed += summary.confirmed;
+        merge_measured(
+            &mut view.depth,
+            &measured,
+            mv.keep_unconfirmed,
+            mv.rescale_cells,
+        );
+        if mv.keypoints {
+            let range = (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth);
+            for (p, point) in track
+                .features
+                .points
+                .iter()
+                .zip(track.points_cam.iter_mut())
+            {
+                let (x, y) = (p[0] as f64 / stride as f64, p[1] as f64 / stride as f64);
+                if let Some(z) = measured.at(x, y).map(|z| z as f64)
+                    && z >= range.0
+                    && z <= range.1
+                {
+                    *point = Some(
+                        self.camera
+                            .back_project(&Point2::new(p[0] as f64, p[1] as f64), z),
+                    );
+                }
+            }
+        }
     }
 
     /// How far a keyframe's fused view lies from where it is now, metres: the
@@ -402,6 +508,15 @@ impl LocalMapper {
             self.fused.push((k.pose, k.depth_scale));
         }
         self.fused_epoch = m.epoch;
+    }
+}
+
+/// A keyframe's tracked pose made to follow the corrections made so far (those of the
+/// last keyframe in the map).
+fn corrected_pose(m: &Map, odom_pose: &Pose) -> Pose {
+    match m.keyframes.last() {
+        Some(last) => renormalized(&(last.pose * last.odom_pose.inverse() * odom_pose)),
+        None => *odom_pose,
     }
 }
 
@@ -746,9 +861,11 @@ impl Slam {
         mapper.refuse_all();
         timings.finalisation.add(t);
         timings.fusion = mapper.fusion_time;
+        timings.multiview = mapper.multiview_time;
         let LocalMapper {
             semantic_map,
             failures,
+            multiview,
             ..
         } = mapper;
         let map = std::mem::take(&mut *write(&map));
@@ -764,6 +881,7 @@ impl Slam {
             semantic_map,
             landmarks,
             local,
+            multiview,
             tracking: run.tracker.counters.clone(),
             correction: corrector.stats,
             skipped: run.skipped,

@@ -156,6 +156,7 @@ impl RunDir {
             std::fs::remove_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
         }
         std::fs::rename(&tmp, &dir).map_err(|e| Error::io(&dir, e))?;
+        crate::io::sync_parent(&dir).map_err(|e| Error::io(&dir, e))?;
         let last = serde_json::to_string(&Last {
             checkpoint: name,
             epoch: state.epoch,

@@ -174,6 +174,10 @@ impl Camera {
         match Self::preset(spec) {
             Some(c) => Ok(c),
             None if Path::new(spec).exists() => Self::from_file(spec),
+            None if spec.contains(['/', '\\']) || spec.ends_with(".toml") => Err(Error::invalid(
+                Path::new(spec),
+                "camera file does not exist",
+            )),
             None => Err(Error::msg(format!(
                 "unknown camera '{spec}': use fr1, fr2, fr3 or the path of a camera TOML file"
             ))),

@@ -1,6 +1,7 @@
 //! Hostile input as a standing test: a corpus of malformed inputs per input kind (TUM text
 //! files, images, SLAM / training / synthesis / sweep configs, camera files, checkpoints,
-//! trajectories, command-line arguments) run through the binaries. Every case must end in
+//! trajectories, command-line arguments) run through the binaries (`slam`, `eval`, `train`,
+//! `synth`, `bench`). Every case must end in
 //! a clean error: an exit code other than 0 and 101 (panic) and not a signal (abort), no
 //! "panicked at" or failed allocation, a message naming the file (and its line where the
 //! parser knows it), and files already in the output folder left as they were. After the
@@ -78,6 +79,7 @@ fn bin(name: &str) -> &'static str {
         "eval" => env!("CARGO_BIN_EXE_eval"),
         "train" => env!("CARGO_BIN_EXE_train"),
         "synth" => env!("CARGO_BIN_EXE_synth"),
+        "bench" => env!("CARGO_BIN_EXE_bench"),
         other => panic!("no binary {other}"),
     }
 }
@@ -168,15 +170,22 @@ fn nan_sdfcnn(dir: &Path) {
 
 /// The FPFDCNN smoke config with one line changed (paths made absolute).
 fn tiny_training_config(from: &str, to: &str) -> String {
+    smoke_config("fpfdcnn_tiny.toml", from, to)
+}
+
+/// A smoke config of `configs/` with one line changed (paths made absolute).
+fn smoke_config(name: &str, from: &str, to: &str) -> String {
     let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fpfdcnn_tiny.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("configs")
+            .join(name),
     )
     .unwrap()
     .replace(
         "\"datasets/fixtures",
         &format!("\"{}/datasets/fixtures", env!("CARGO_MANIFEST_DIR")),
     );
-    assert!(text.contains(from), "fpfdcnn_tiny.toml has no '{from}'");
+    assert!(text.contains(from), "{name} has no '{from}'");
     text.replace(from, to)
 }
 
@@ -217,6 +226,8 @@ fn corpus() -> Vec<Case> {
             .file("c.toml", "[pnp]\nmax_iterations = 0\n"),
         slam("ORB scale 1", &["--config", "c.toml"], &["c.toml", "features.orb_scale_factor"])
             .file("c.toml", "[features]\norb_scale_factor = 1.0\n"),
+        slam("ORB scale 0.5", &["--config", "c.toml"], &["c.toml", "features.orb_scale_factor"])
+            .file("c.toml", "[features]\norb_scale_factor = 0.5\n"),
         slam("ORB no levels", &["--config", "c.toml"], &["c.toml", "features.orb_levels"])
             .file("c.toml", "[features]\norb_levels = 0\n"),
         slam("too many keypoints", &["--config", "c.toml"], &["c.toml", "features.top_k"])
@@ -245,7 +256,17 @@ fn corpus() -> Vec<Case> {
             "cam.toml",
             "width = 320\nheight = 240\nfx = 250.0\nfy = 250.0\ncx = 160.0\ncy = 120.0\n",
         ),
+        slam(
+            "camera larger than the images",
+            &["--camera", "cam.toml"],
+            &["640x480", "1280x960"],
+        )
+        .file(
+            "cam.toml",
+            "width = 1280\nheight = 960\nfx = 1000.0\nfy = 1000.0\ncx = 640.0\ncy = 480.0\n",
+        ),
         slam("unknown camera name", &["--camera", "fr9"], &["fr9"]),
+        slam("missing camera file", &["--camera", "nocam.toml"], &["nocam.toml", "does not exist"]),
         // Checkpoints.
         case(
             "FPFDCNN checkpoint of garbage",
@@ -323,6 +344,8 @@ fn corpus() -> Vec<Case> {
         case("zero quaternion", "eval", &["ate", "gt.txt", "est.txt"], &["gt.txt:1", "quaternion"])
             .file("gt.txt", "1.0 0 0 0 0 0 0 0\n")
             .file("est.txt", trajectory),
+        case("one pose, aligned", "eval", &["ate", "gt.txt", "gt.txt", "--align", "se3"], &["1 matched position", "--align none"])
+            .file("gt.txt", "1.0 0 0 0 0 0 0 1\n"),
         case("missing trajectory", "eval", &["ate", "nofile.txt", "est.txt"], &["nofile.txt"])
             .file("est.txt", trajectory),
         // Training configs.
@@ -339,6 +362,13 @@ fn corpus() -> Vec<Case> {
             .file("t.toml", &tiny_training_config("lr = 0.001", "lr = nan")),
         case("zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
             .file("t.toml", &tiny_training_config("epochs = 2", "epochs = 0")),
+        case("SDFCNN zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
+            .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "epochs = 60", "epochs = 0")),
+        case("SDFCNN NaN gradient clip", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "grad_clip_norm"])
+            .file(
+                "t.toml",
+                &smoke_config("sdfcnn_tiny.toml", "lr = 0.001", "lr = 0.001\ngrad_clip_norm = nan"),
+            ),
         case("unknown model", "train", &["--config", "t.toml"], &["t.toml", "no trainer"])
             .file("t.toml", "model = \"nope\"\n"),
         case("training TOML syntax", "train", &["--config", "t.toml"], &["t.toml:2"])
@@ -346,6 +376,9 @@ fn corpus() -> Vec<Case> {
         case("missing training config", "train", &["--config", "nofile.toml"], &["nofile.toml"]),
         case("sweep without out", "train", &["--config", "sweep.toml"], &["sweep.toml", "out"])
             .file("sweep.toml", "model = \"sweep\"\nbase = \"nofile.toml\"\n"),
+        // Benchmark arguments.
+        case("no timed runs", "bench", &["--runs", "0"], &["--runs", "1..=1000"]),
+        case("a billion runs", "bench", &["--runs", "1000000000"], &["--runs"]),
         // Synthesis configs.
         case("synth field of the wrong type", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:1"])
             .file("s.toml", "frames = \"many\"\n"),

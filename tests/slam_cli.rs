@@ -421,3 +421,70 @@ fn weights_in_the_current_directory_are_the_defaults() {
     assert!(ok, "{err}");
     assert!(err.contains("gt labels"), "{err}");
 }
+
+/// A long sequence made of the fixture's ten frames over and over (symbolic links, fresh
+/// time stamps 1/30 s apart), without ground truth.
+#[cfg(unix)]
+fn looped_fixture(dir: &Path, frames: usize) -> PathBuf {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join(FIXTURE);
+    let pairs: Vec<(String, String)> = std::fs::read_to_string(src.join("associations.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            (f[1].to_string(), f[3].to_string())
+        })
+        .collect();
+    let seq = dir.join("looped");
+    std::fs::create_dir_all(seq.join("rgb")).unwrap();
+    std::fs::create_dir_all(seq.join("depth")).unwrap();
+    let mut assoc = String::new();
+    for i in 0..frames {
+        let (rgb, depth) = &pairs[i % pairs.len()];
+        let t = 1000.0 + i as f64 / 30.0;
+        let (r, d) = (format!("rgb/{t:.6}.png"), format!("depth/{t:.6}.png"));
+        std::os::unix::fs::symlink(src.join(rgb), seq.join(&r)).unwrap();
+        std::os::unix::fs::symlink(src.join(depth), seq.join(&d)).unwrap();
+        assoc.push_str(&format!("{t:.6} {r} {t:.6} {d}\n"));
+    }
+    std::fs::write(seq.join("associations.txt"), assoc).unwrap();
+    seq
+}
+
+#[cfg(unix)]
+#[test]
+fn ctrl_c_stops_the_run_writes_its_outputs_and_exits_130() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = tmp_dir("ctrl_c");
+    let seq = looped_fixture(&dir, 600);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_slam"))
+        .args(["--sequence", seq.to_str().unwrap(), "--camera", "fr1"])
+        .args(["--features", "orb", "--labels", "none", "--out", "out"])
+        .current_dir(&dir)
+        .env("RUST_BACKTRACE", "0")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The header is printed once the Ctrl-C handler is installed.
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut header = String::new();
+    err.read_line(&mut header).unwrap();
+    assert!(header.starts_with("sequence"), "{header}");
+    // SAFETY: kill sends a signal to the child we spawned.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    let mut rest = String::new();
+    let _ = std::io::Read::read_to_string(&mut err, &mut rest);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{rest}");
+    let out = dir.join("out");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["interrupted"], true);
+    let done = report["frames_processed"].as_u64().unwrap();
+    assert!(done < 600, "{done} frames: the run was not stopped");
+    let traj = sdf_slam::trajectory::Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
+    assert_eq!(traj.len() as u64, done);
+}

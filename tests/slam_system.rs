@@ -528,9 +528,14 @@ fn stop_flag_ends_the_run_and_the_trajectory_so_far_is_written() {
         } else {
             assert_eq!(out.frames.len(), 5);
         }
+        // An earlier run's report in the folder: the new trajectory must not sit beside it
+        // as if they were one run (report.json, written last, marks a finished run).
         let dir = tmp_dir(&format!("stop_{threads}"));
+        std::fs::write(dir.join("report.json"), "{}").unwrap();
+        std::fs::write(dir.join("report.md"), "old").unwrap();
         let p = write_trajectory(&out, &dir).unwrap();
         assert_eq!(Trajectory::read_tum(p).unwrap().len(), out.frames.len());
+        assert!(!dir.join("report.json").exists() && !dir.join("report.md").exists());
     }
 }
 

@@ -43,12 +43,12 @@ struct Cli {
     /// Cases to run (repeat the flag; default all).
     #[arg(long, value_enum)]
     case: Vec<Case>,
-    /// Timed runs per case (the median is reported).
-    #[arg(long, default_value_t = 5)]
-    runs: usize,
-    /// Untimed runs first.
-    #[arg(long, default_value_t = 2)]
-    warmup: usize,
+    /// Timed runs per case (the median is reported), 1-1000.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=1000))]
+    runs: u16,
+    /// Untimed runs first, 0-1000.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(0..=1000))]
+    warmup: u16,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
@@ -272,7 +272,9 @@ fn main() -> Result<()> {
     for &case in &cases {
         for &backend in &backends {
             eprintln!("{} on {backend} ...", case.label());
-            let r = std::panic::catch_unwind(|| run_case(case, backend, cli.runs, cli.warmup));
+            let r = std::panic::catch_unwind(|| {
+                run_case(case, backend, cli.runs.into(), cli.warmup.into())
+            });
             let r = match r {
                 Ok(Ok(m)) => Ok(m),
                 Ok(Err(e)) => Err(format!("error: {e}")),

@@ -317,6 +317,18 @@ fn main() -> Result<()> {
         max_frames: cli.max_frames,
     };
     slam.validate()?;
+    // The handler first: the header below tells a caller the run has started.
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\nstopping after the current frame (Ctrl-C again to quit at once)");
+        })
+        .context("installing the Ctrl-C handler")?;
+    }
     eprintln!(
         "sequence {} ({n} frames), camera {}, {} mode, {} keypoints{}, {} labels{}, {}",
         sequence.root.display(),
@@ -339,17 +351,6 @@ fn main() -> Result<()> {
             "single thread"
         }
     );
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || {
-            if stop.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-            eprintln!("\nstopping after the current frame (Ctrl-C again to quit at once)");
-        })
-        .context("installing the Ctrl-C handler")?;
-    }
     let bar = ProgressBar::new(n as u64);
     bar.set_style(
         ProgressStyle::with_template(

@@ -145,9 +145,12 @@ pub fn umeyama(x: &[Point3<f64>], y: &[Point3<f64>], with_scale: bool) -> Result
     let v_t = Matrix3::from_rows(&[v_t.row(order[0]), v_t.row(order[1]), v_t.row(order[2])]);
     let d = Vector3::new(d[order[0]], d[order[1]], d[order[2]]);
     if d.iter().filter(|&&s| s > f64::EPSILON).count() < 2 {
-        return Err(Error::msg(
-            "degenerate covariance rank, Umeyama alignment is not possible (are all positions on a line?)",
-        ));
+        return Err(Error::msg(format!(
+            "cannot align: the {} matched position(s) do not span a plane (one pose, one point or \
+             one straight line), so the rotation is undetermined; use --align none, or longer \
+             trajectories (evo: degenerate covariance rank)",
+            x.len()
+        )));
     }
     let mut s = Vector3::new(1.0, 1.0, 1.0);
     if u.determinant() * v_t.determinant() < 0.0 {

@@ -142,12 +142,30 @@ const T_MAX_DIFF: f64 = 0.02;
 
 /// Writes only `trajectory.txt` (e.g. as soon as a run is interrupted).
 pub fn write_trajectory(out: &SlamOutput, dir: &Path) -> Result<PathBuf> {
+    retire_manifest(dir)?;
     let p = dir.join("trajectory.txt");
     out.trajectory().write_tum(&p)?;
     Ok(p)
 }
 
-/// Writes every output into `dir` and returns the report.
+/// `report.json` is written last and lists the run's files: a folder holds a finished run
+/// exactly when it has one. Before a run writes over an earlier one, the earlier report
+/// goes first, so that a run killed half-way never leaves old and new files looking like
+/// one run.
+fn retire_manifest(dir: &Path) -> Result<()> {
+    for name in ["report.json", "report.md"] {
+        let p = dir.join(name);
+        match std::fs::remove_file(&p) {
+            Ok(()) => crate::io::sync_parent(&p).map_err(|e| Error::io(&p, e))?,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(Error::io(&p, e)),
+        }
+    }
+    Ok(())
+}
+
+/// Writes every output into `dir` (the report last, see [`retire_manifest`]) and returns
+/// the report.
 pub fn write_outputs(
     out: &SlamOutput,
     seq: &TumSequence,

@@ -380,6 +380,9 @@ fn corpus() -> Vec<Case> {
         case("no timed runs", "bench", &["--runs", "0"], &["--runs", "1..=1000"]),
         case("a billion runs", "bench", &["--runs", "1000000000"], &["--runs"]),
         // Synthesis configs.
+        case("synth 1e12 frames", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "frames must be at most"])
+            .file("s.toml", "frames = 1000000000000\n"),
+        case("synth --frames 1e12", "synth", &["--frames", "1000000000000", "--out", "out"], &["frames must be at most"]),
         case("synth field of the wrong type", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:1"])
             .file("s.toml", "frames = \"many\"\n"),
     ]

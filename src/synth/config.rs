@@ -348,10 +348,18 @@ impl SynthConfig {
 
     /// Checks ranges; the message names the field.
     pub fn validate(&self) -> Result<()> {
+        /// Frames of one sequence; the camera path is planned whole before rendering.
+        const MAX_FRAMES: usize = 1_000_000;
         self.room.validate()?;
         let bad = |m: &str| Err(Error::msg(m.to_string()));
         if self.scenes == 0 || self.scenes > 100_000 {
             return bad("scenes must be between 1 and 100000");
+        }
+        if self.frames > MAX_FRAMES {
+            return Err(Error::msg(format!(
+                "frames must be at most {MAX_FRAMES} per sequence (about 9 hours at 30 Hz), got {}",
+                self.frames
+            )));
         }
         if self.frames == 0 && self.output.sequence {
             return bad("frames must be at least 1 when sequences are written");

@@ -148,9 +148,17 @@ pub fn name(label: u8) -> Option<&'static str> {
     }
 }
 
-/// Display colour of a label; black for void and out-of-range values.
+/// Display colour of void and of values past the 40 classes.
+pub const VOID_COLOR: [u8; 3] = [0, 0, 0];
+
+/// Display colour of a label ([`VOID_COLOR`] for void and out-of-range values).
 pub fn colorize(label: u8) -> [u8; 3] {
-    PALETTE.get(label as usize).copied().unwrap_or([0, 0, 0])
+    PALETTE.get(label as usize).copied().unwrap_or(VOID_COLOR)
+}
+
+/// Name of a label for reports: the class name, `"void"`, or `"label N"` past the classes.
+pub fn display_name(label: u8) -> String {
+    name(label).map_or_else(|| format!("label {label}"), str::to_string)
 }
 
 /// Colourises a label image with [`PALETTE`].
@@ -175,5 +183,36 @@ mod tests {
         assert_eq!(colorize(VOID), [0, 0, 0]);
         assert_eq!(name(VOID), Some("void"));
         assert_eq!(name(40), None);
+        assert_eq!(display_name(40), "label 40");
+        assert_eq!(display_name(label::FLOOR_MAT), "floor mat");
+    }
+
+    /// The tables are the files in `datasets/meta/nyuv2/` (1-based ids there).
+    #[test]
+    fn tables_match_the_meta_files() {
+        let names = include_str!("../datasets/meta/nyuv2/nyu40_class_names.txt");
+        let mut n = 0;
+        for line in names.lines() {
+            if let Some((id, name)) = line.trim().split_once(' ')
+                && let Ok(id) = id.parse::<usize>()
+            {
+                assert_eq!(NYU40[id - 1], name.trim(), "class {id}");
+                n += 1;
+            }
+        }
+        assert_eq!(n, NUM_CLASSES);
+        let csv = include_str!("../datasets/meta/nyuv2/nyu40_colormap_scannet.csv");
+        let mut n = 0;
+        for line in csv.lines().skip(1) {
+            let f: Vec<u8> = line
+                .split(',')
+                .filter_map(|v| v.trim().parse::<u8>().ok())
+                .collect();
+            if let [id @ 1..=40, r, g, b] = f[..] {
+                assert_eq!(PALETTE[id as usize - 1], [r, g, b], "class {id}");
+                n += 1;
+            }
+        }
+        assert_eq!(n, NUM_CLASSES);
     }
 }

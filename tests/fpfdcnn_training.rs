@@ -1,6 +1,8 @@
 //! FPFDCNN training end to end on the real fixture frames at a tiny size:
 //! checkpoints, metrics, resume that continues exactly, bad configs.
 
+mod common;
+
 use sdf_slam::training::{RunDir, RunOptions};
 use std::path::{Path, PathBuf};
 
@@ -30,9 +32,7 @@ exclusion_px = 2.0
 "#;
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_fptrain_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+    common::fresh_path("fptrain", name)
 }
 
 fn run(out: &Path, epochs: usize, resume: bool) -> sdf_slam::Result<()> {

@@ -1,6 +1,8 @@
 //! The NYUv2 loader on real labelled images (datasets/fixtures/nyuv2) and the
 //! segmentation / depth metrics on them.
 
+mod common;
+
 use sdf_slam::dataset::{LabelImage, NyuDataset};
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator};
 use std::path::{Path, PathBuf};
@@ -8,10 +10,7 @@ use std::path::{Path, PathBuf};
 const NYU: &str = "datasets/fixtures/nyuv2";
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_nyu_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("nyu", name)
 }
 
 #[test]

@@ -2,6 +2,8 @@
 //! (scripts/nyu_mat_fixture.py) against the PNG fixture it was made from, split lists, the
 //! MATLAB axis order on a tiny file, and errors on bad input.
 
+mod common;
+
 use hdf5_pure::FileBuilder;
 use sdf_slam::dataset::{NyuDataset, NyuMat};
 use std::path::{Path, PathBuf};
@@ -12,10 +14,7 @@ const PNG: &str = "datasets/fixtures/nyuv2";
 const TEST_SPLIT: &str = "datasets/meta/nyuv2/splits_test_1based.txt";
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_nyu_mat_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("nyu_mat", name)
 }
 
 #[test]

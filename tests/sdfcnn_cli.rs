@@ -1,14 +1,13 @@
 //! The `train --config` and `eval seg` commands end to end on the NYUv2 fixtures, with a tiny
 //! network (32×48, one epoch).
 
+mod common;
+
 use std::path::PathBuf;
 use std::process::Command;
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_cli_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("cli", name)
 }
 
 const TINY: &str = r#"model = "sdfcnn"

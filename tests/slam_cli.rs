@@ -1,6 +1,8 @@
 //! The `slam` binary's argument handling: clear errors before any frame is
 //! processed, and a short real run writing every output.
 
+mod common;
+
 use burn::module::Module;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnPredictor};
@@ -14,10 +16,7 @@ use std::process::Command;
 const FIXTURE: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
 fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_slamcli_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("slamcli", name)
 }
 
 fn slam(args: &[&str], cwd: &Path) -> (bool, String, String) {
@@ -473,6 +472,8 @@ fn ctrl_c_stops_the_run_writes_its_outputs_and_exits_130() {
     let mut header = String::new();
     err.read_line(&mut header).unwrap();
     assert!(header.starts_with("sequence"), "{header}");
+    // Let it track a few frames (600 take far longer than this).
+    std::thread::sleep(std::time::Duration::from_millis(1500));
     // SAFETY: kill sends a signal to the child we spawned.
     assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
     let mut rest = String::new();
@@ -485,6 +486,9 @@ fn ctrl_c_stops_the_run_writes_its_outputs_and_exits_130() {
     assert_eq!(report["interrupted"], true);
     let done = report["frames_processed"].as_u64().unwrap();
     assert!(done < 600, "{done} frames: the run was not stopped");
-    let traj = sdf_slam::trajectory::Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
-    assert_eq!(traj.len() as u64, done);
+    // Stopped before its first frame on a very slow machine, it has no trajectory to write.
+    if done > 0 {
+        let traj = sdf_slam::trajectory::Trajectory::read_tum(out.join("trajectory.txt")).unwrap();
+        assert_eq!(traj.len() as u64, done);
+    }
 }

@@ -3,6 +3,8 @@
 //! `slam` binary generates on first use. Tiny sizes: a 160x120 synthetic
 //! sequence and an SDFCNN with a small inner size and decoder.
 
+mod common;
+
 use burn::module::{ModuleMapper, Param};
 use burn::prelude::*;
 use sdf_slam::camera::Camera;
@@ -26,10 +28,7 @@ const FRAMES: usize = 16;
 const PLANE: f32 = 2.0;
 
 fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_slamnet_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("slamnet", name)
 }
 
 /// The default sequence's configuration at a tiny size, generated once per

@@ -2,6 +2,8 @@
 //! caster written here (exact depth, NYU40 labels, known poses) and the 10 real
 //! fr1_rpy fixture frames, with ORB keypoints on one thread unless stated.
 
+mod common;
+
 use image::{Rgb, RgbImage};
 use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use sdf_slam::camera::Camera;
@@ -23,10 +25,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 const FIXTURE: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
 fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_slam_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("slam", name)
 }
 
 // ---------------------------------------------------------------- box room

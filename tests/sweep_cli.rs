@@ -2,16 +2,15 @@
 //! run trains in its own folder, a killed sweep resumes without retraining finished runs, the
 //! result table agrees with the runs' `metrics.csv`, and bad sweeps fail before any run.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_sweep_cli_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("sweep_cli", name)
 }
 
 const BASE: &str = r#"model = "sdfcnn"

@@ -2,6 +2,8 @@
 //! a geometric check that sensor depth + ground-truth poses reproject corners of
 //! one frame onto the same image content in another.
 
+mod common;
+
 use nalgebra::Point2;
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{TumConfig, TumSequence};
@@ -13,10 +15,7 @@ use std::path::{Path, PathBuf};
 const SEQ: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
 fn tmp_dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_tum_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::fresh_dir("tum", name)
 }
 
 #[test]

@@ -376,6 +376,10 @@ fn main() -> Result<()> {
     write_trajectory(&output, &out_dir)?;
     let report = write_outputs(&output, &sequence, &camera, &config, &out_dir)?;
     println!("{}", report.summary());
+    if output.interrupted {
+        // The outputs cover the frames processed so far; the exit status says they stop early.
+        std::process::exit(130);
+    }
     if output.frames.is_empty() {
         anyhow::bail!(
             "no frame of {} could be processed ({} skipped, reasons in {}): no trajectory",
@@ -383,10 +387,6 @@ fn main() -> Result<()> {
             output.skipped.len(),
             out_dir.join("report.md").display()
         );
-    }
-    if output.interrupted {
-        // The outputs cover the frames processed so far; the exit status says they stop early.
-        std::process::exit(130);
     }
     Ok(())
 }

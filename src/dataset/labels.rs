@@ -12,8 +12,7 @@ pub struct LabelImage {
     pub data: Vec<u8>,
 }
 
-/// The void / unlabelled value.
-pub const VOID: u8 = 255;
+pub use crate::classes::VOID;
 
 impl LabelImage {
     pub fn new(width: u32, height: u32, fill: u8) -> Self {

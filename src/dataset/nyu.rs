@@ -24,8 +24,7 @@ use image::RgbImage;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-/// Number of NYUv2 semantic classes used by the paper.
-pub const NUM_CLASSES: usize = 40;
+pub use crate::classes::NUM_CLASSES;
 
 /// One sample: its id and where it is.
 #[derive(Debug, Clone, PartialEq)]

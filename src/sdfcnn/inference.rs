@@ -25,41 +25,10 @@ use crate::nn::trainable_params;
 use crate::plot::{Panel, panels_figure};
 use crate::training::{BackendKind, RunDir};
 
-const COLORMAP_CSV: &str = include_str!("../../datasets/meta/nyuv2/nyu40_colormap_scannet.csv");
-const CLASS_NAMES_TXT: &str = include_str!("../../datasets/meta/nyuv2/nyu40_class_names.txt");
-
-/// NYU40 colours of classes 0-39 (the CSV's rows with ids 1-40).
-pub fn nyu40_palette() -> [[u8; 3]; 40] {
-    let mut palette = [[0u8; 3]; 40];
-    for line in COLORMAP_CSV.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let num = |i: usize| f.get(i).and_then(|s| s.parse::<usize>().ok());
-        if let (Some(id @ 1..=40), Some(r), Some(g), Some(b)) = (num(0), num(2), num(3), num(4)) {
-            palette[id - 1] = [r, g, b].map(|v| v.min(255) as u8);
-        }
-    }
-    palette
-}
-
-/// Names of classes 0-39 (`nyu40_class_names.txt` lists them with 1-based ids).
-pub fn nyu40_names() -> Vec<String> {
-    let mut names: Vec<String> = (0..40).map(|i| format!("class {i}")).collect();
-    for line in CLASS_NAMES_TXT.lines() {
-        if let Some((id, name)) = line.trim().split_once(' ')
-            && let Ok(id @ 1..=40) = id.parse::<usize>()
-        {
-            names[id - 1] = name.trim().to_string();
-        }
-    }
-    names
-}
-
-/// Colour image of a label map (void and unknown classes black).
+/// Colour image of a label map ([`crate::classes::colorize`]).
 pub fn colorize_labels(labels: &LabelImage) -> RgbImage {
-    let palette = nyu40_palette();
     RgbImage::from_fn(labels.width, labels.height, |x, y| {
-        let l = labels.get(x, y) as usize;
-        image::Rgb(palette.get(l).copied().unwrap_or([0, 0, 0]))
+        image::Rgb(crate::classes::colorize(labels.get(x, y)))
     })
 }
 
@@ -137,10 +106,14 @@ pub fn save_figure(
         .iter()
         .map(|(title, image)| Panel { title, image })
         .collect();
-    let (palette, names) = (nyu40_palette(), nyu40_names());
     let legend: Vec<(String, [u8; 3])> = classes
         .iter()
-        .filter_map(|&c| Some((names.get(c as usize)?.clone(), *palette.get(c as usize)?)))
+        .filter_map(|&c| {
+            Some((
+                crate::classes::name(c)?.to_string(),
+                crate::classes::colorize(c),
+            ))
+        })
         .collect();
     panels_figure(path, &panels, 3, &legend)
 }
@@ -403,15 +376,7 @@ mod tests {
     }
 
     #[test]
-    fn palette_and_names_match_the_meta_files() {
-        let p = nyu40_palette();
-        assert_eq!(p[0], [174, 199, 232]); // wall
-        assert_eq!(p[39], [100, 85, 144]); // otherprop
-        let n = nyu40_names();
-        assert_eq!(
-            (n[0].as_str(), n[19].as_str(), n[39].as_str()),
-            ("wall", "floor mat", "otherprop")
-        );
+    fn labels_and_depth_are_coloured() {
         let mut l = LabelImage::new(2, 1, VOID);
         l.data[1] = 1;
         let c = colorize_labels(&l);

@@ -14,7 +14,6 @@
 //!   Table 11 accuracy; [`config`] — every tunable; [`defaults`] — bundled
 //!   weights and the generated default sequence.
 
-pub mod classes;
 pub mod config;
 pub mod correction;
 pub mod defaults;

@@ -5,13 +5,13 @@
 //! ground truth allows: per-class accuracy of the map labels and the share of
 //! map points within a tolerance of the true surface.
 
-use super::classes;
 use super::config::SlamConfig;
 use super::map::ViewBounds;
 use super::semantic_map::{MapPoint, label_histogram, render_topdown, write_ply};
 use super::semantic_source::GroundTruthSource;
 use super::system::{DepthMode, SlamOutput};
 use crate::camera::Camera;
+use crate::classes;
 use crate::dataset::{DepthImage, LabelImage, TumSequence};
 use crate::error::{Error, Result};
 use crate::geometry::Sim3;
@@ -296,7 +296,7 @@ pub fn write_outputs(
             };
             LabelCount {
                 label,
-                name: classes::name(label),
+                name: classes::display_name(label),
                 points: n,
             }
         })
@@ -509,7 +509,7 @@ fn evaluate_map(
         .filter(|(_, c)| c.0 > 0)
         .map(|(l, c)| ClassAccuracy {
             label: l as u8,
-            name: classes::name(l as u8),
+            name: classes::display_name(l as u8),
             points: c.0,
             accuracy: c.1 as f64 / c.0 as f64,
         })

@@ -6,10 +6,10 @@
 //! colour as `red green blue`, semantic colour as `sem_red sem_green sem_blue`,
 //! and `label`), and drawn from above with a class legend.
 
-use super::classes;
 use super::config::{LabelVoteConfig, MapConfig};
 use super::map::KeyFrame;
 use crate::camera::Camera;
+use crate::classes;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use nalgebra::{Point2, Point3, Vector3};
@@ -334,7 +334,7 @@ pub fn write_ply(path: impl AsRef<Path>, points: &[MapPoint], ascii: bool) -> Re
         }
         writeln!(w, "end_header")?;
         for p in points {
-            let s = classes::color(p.label);
+            let s = classes::colorize(p.label);
             if ascii {
                 writeln!(
                     w,
@@ -603,7 +603,7 @@ pub fn render_topdown(
         let (x, y) = to_px(a, b);
         let p = &points[i];
         let c = if p.label != classes::VOID {
-            classes::color(p.label)
+            classes::colorize(p.label)
         } else {
             p.rgb
         };
@@ -674,14 +674,14 @@ pub fn render_topdown(
             if y > h as i32 - 24 {
                 break;
             }
-            let c = classes::color(l as u8);
+            let c = classes::colorize(l as u8);
             root.draw(&Rectangle::new(
                 [(x0, y), (x0 + 18, y + 16)],
                 RGBColor(c[0], c[1], c[2]).filled(),
             ))
             .map_err(|e| err(e.to_string()))?;
             root.draw_text(
-                &format!("{} ({n})", classes::name(l as u8)),
+                &format!("{} ({n})", classes::display_name(l as u8)),
                 &font.color(&BLACK),
                 (x0 + 26, y),
             )
@@ -858,10 +858,10 @@ mod tests {
             if !ascii {
                 assert!(header.contains("binary_little_endian"));
                 assert_eq!(bytes.len() - header_end, 37 * 19);
-                // First vertex, by hand: x = 0.0, y = -1.25, z = 3.0, void label grey.
+                // First vertex, by hand: x = 0.0, y = -1.25, z = 3.0, void label black.
                 let body = &bytes[header_end..];
                 assert_eq!(f32::from_le_bytes(body[4..8].try_into().unwrap()), -1.25);
-                assert_eq!(&body[12..19], &[0, 200, 7, 128, 128, 128, 255]);
+                assert_eq!(&body[12..19], &[0, 200, 7, 0, 0, 0, 255]);
             }
             assert_eq!(read_ply(&p).unwrap(), pts);
         }

@@ -7,10 +7,11 @@
 
 use anyhow::{Context, Result};
 use clap::Args;
+use sdf_slam::classes::NYU40;
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics};
 use sdf_slam::sdfcnn::SdfcnnPredictor;
 use sdf_slam::sdfcnn::data::{DataSource, Set};
-use sdf_slam::sdfcnn::inference::{colorize_depth, colorize_labels, nyu40_names, save_figure};
+use sdf_slam::sdfcnn::inference::{colorize_depth, colorize_labels, save_figure};
 use sdf_slam::training::BackendKind;
 use serde_json::json;
 use std::path::PathBuf;
@@ -141,13 +142,12 @@ pub fn run(a: &SegArgs) -> Result<()> {
         print_classes(&confusion);
     }
     if let Some(p) = &a.json {
-        let names = nyu40_names();
         let per_class: Vec<_> = confusion
             .per_class()
             .iter()
             .enumerate()
             .map(|(i, c)| {
-                json!({"id": i, "name": names.get(i), "accuracy": c.accuracy, "iou": c.iou,
+                json!({"id": i, "name": NYU40.get(i), "accuracy": c.accuracy, "iou": c.iou,
                        "gt_pixels": c.gt_pixels})
             })
             .collect();
@@ -217,13 +217,12 @@ fn print_tables(
 }
 
 fn print_classes(c: &ConfusionMatrix) {
-    let names = nyu40_names();
     println!("\nPer class (0-based NYU40 ids)\n");
     println!("| id | class | gt pixels | accuracy | IoU |");
     println!("|---|---|---|---|---|");
     let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
     for (i, s) in c.per_class().iter().enumerate() {
-        let name = names.get(i).map_or("?", String::as_str);
+        let name = NYU40.get(i).copied().unwrap_or("?");
         println!(
             "| {i} | {name} | {} | {} | {} |",
             s.gt_pixels,

@@ -11,7 +11,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{LabelImage, TumSequence};
 use sdf_slam::slam::SlamConfig;
 use sdf_slam::slam::map::KeyframeView;
-use sdf_slam::slam::multiview_depth::{GrayView, SweepReference, SweepSettings, sweep_depth};
+use sdf_slam::slam::multiview_depth::{GrayView, SweepReference, sweep_depth};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -33,7 +33,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect::<Result<Vec<_>, _>>()?;
     let seq = TumSequence::open(root)?;
     let camera = Camera::load(&format!("{root}/camera.toml"))?;
-    let mv = SlamConfig::default().multiview;
+    let mut mv = SlamConfig::default().multiview;
+    if let Some(p) = parallax {
+        mv.min_parallax_px = p;
+    }
     let stride = SlamConfig::default().map.pixel_stride;
     // The map's grid of a frame (every `stride`-th pixel of its sensor depth), its grey
     // image at full resolution and its ground-truth pose.
@@ -61,11 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .map(|(image, pose)| SweepReference { image, pose: *pose })
         .collect();
-    let mut settings = SweepSettings::from_config(&mv);
-    if let Some(p) = parallax {
-        settings.min_parallax_px = p;
-    }
-    let (measured, sum) = sweep_depth(&gray, &pose, &predicted, &refs, &camera, stride, &settings);
+    let (measured, sum) = sweep_depth(&gray, &pose, &predicted, &refs, &camera, stride, &mv);
     let pairs: Vec<(f32, f32)> = measured
         .data
         .iter()

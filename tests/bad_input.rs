@@ -8,10 +8,11 @@
 //! corpus, the largest child's peak memory stays bounded (no size from a file is
 //! allocated before it is checked).
 
+mod common;
+
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnPredictor};
 use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -150,22 +151,9 @@ fn nan_fpfdcnn(dir: &Path) {
 
 /// A tiny SDFCNN checkpoint whose weights are NaN, in half precision as bundled.
 fn nan_sdfcnn(dir: &Path) {
-    let ckpt = dir.join("nan");
-    std::fs::create_dir_all(&ckpt).unwrap();
-    let config = SdfcnnConfig::new()
-        .with_inner_size([32, 48])
-        .with_decoder_dim(16)
-        .with_crp_stages(1);
     let device = BackendKind::Ndarray.device();
-    let model = config.init(&device).unwrap().map(&mut Poison);
-    SdfcnnPredictor::from_model(model, config, device)
-        .save_f16(&ckpt.join("model.bpk"))
-        .unwrap();
-    std::fs::write(
-        ckpt.join("config.toml"),
-        "model = \"sdfcnn\"\n[network]\ninner_size = [32, 48]\ndecoder_dim = 16\ncrp_stages = 1\n",
-    )
-    .unwrap();
+    let model = common::tiny_sdfcnn_config().init(&device).unwrap();
+    common::write_tiny_sdfcnn(&dir.join("nan"), model.map(&mut Poison));
 }
 
 /// The FPFDCNN smoke config with one line changed (paths made absolute).

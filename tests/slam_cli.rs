@@ -5,7 +5,6 @@ mod common;
 
 use burn::module::Module;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnPredictor};
 use sdf_slam::slam::defaults::{
     BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, default_sequence_config, generate_sequence,
 };
@@ -268,21 +267,9 @@ fn tiny_default_sequence(root: &Path, frames: usize) -> PathBuf {
 
 /// A randomly initialised tiny SDFCNN checkpoint in half precision, as bundled.
 fn tiny_sdfcnn(dir: &Path) {
-    std::fs::create_dir_all(dir).unwrap();
-    let config = SdfcnnConfig::new()
-        .with_inner_size([32, 48])
-        .with_decoder_dim(16)
-        .with_crp_stages(1);
     let device = BackendKind::Ndarray.device();
-    let model = sdf_slam::nn::seeded_init(config.init(&device).unwrap(), 3);
-    SdfcnnPredictor::from_model(model, config, device)
-        .save_f16(&dir.join("model.bpk"))
-        .unwrap();
-    std::fs::write(
-        dir.join("config.toml"),
-        "model = \"sdfcnn\"\n[network]\ninner_size = [32, 48]\ndecoder_dim = 16\ncrp_stages = 1\n",
-    )
-    .unwrap();
+    let model = common::tiny_sdfcnn_config().init(&device).unwrap();
+    common::write_tiny_sdfcnn(dir, sdf_slam::nn::seeded_init(model, 3));
 }
 
 /// A randomly initialised FPFDCNN checkpoint (Table 12) with the smoke-run config.

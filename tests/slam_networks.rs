@@ -9,7 +9,7 @@ use burn::module::{ModuleMapper, Param};
 use burn::prelude::*;
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
-use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig, SdfcnnPredictor};
+use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
 use sdf_slam::slam::defaults::{default_sequence_config, generate_sequence};
 use sdf_slam::slam::map::points_from_depth;
 use sdf_slam::slam::report::write_outputs;
@@ -69,16 +69,6 @@ impl ModuleMapper for ConstantDepth {
     }
 }
 
-fn tiny_config() -> SdfcnnConfig {
-    SdfcnnConfig::new()
-        .with_inner_size([32, 48])
-        .with_decoder_dim(16)
-        .with_crp_stages(1)
-}
-
-const TINY_TOML: &str =
-    "model = \"sdfcnn\"\n[network]\ninner_size = [32, 48]\ndecoder_dim = 16\ncrp_stages = 1\n";
-
 /// A randomly initialised tiny SDFCNN predicting depth `PLANE`, saved in half
 /// precision like the bundled weights (`model.bpk` + `config.toml`).
 fn checkpoint() -> PathBuf {
@@ -86,15 +76,12 @@ fn checkpoint() -> PathBuf {
     DIR.get_or_init(|| {
         let dir = tmp_dir("ckpt");
         let device = BackendKind::Ndarray.device();
-        let model: Sdfcnn = sdf_slam::nn::seeded_init(tiny_config().init(&device).unwrap(), 7);
+        let model: Sdfcnn =
+            sdf_slam::nn::seeded_init(common::tiny_sdfcnn_config().init(&device).unwrap(), 7);
         let mut m = ConstantDepth { bias: 0, weight: 0 };
         let model = model.map(&mut m);
         assert_eq!((m.bias, m.weight), (1, 1), "the depth head was not found");
-        // (f16 tensors live on flex: ndarray has none.)
-        SdfcnnPredictor::from_model(model, tiny_config(), device)
-            .save_f16(&dir.join("model.bpk"))
-            .unwrap();
-        std::fs::write(dir.join("config.toml"), TINY_TOML).unwrap();
+        common::write_tiny_sdfcnn(&dir, model);
         dir
     })
     .clone()
@@ -321,7 +308,7 @@ fn sdfcnn_checkpoints_that_do_not_fit_are_clear_errors() {
     // Another decoder width than the weights have.
     std::fs::write(
         dir.join("config.toml"),
-        TINY_TOML.replace("decoder_dim = 16", "decoder_dim = 8"),
+        common::TINY_SDFCNN_TOML.replace("decoder_dim = 16", "decoder_dim = 8"),
     )
     .unwrap();
     let e = SdfcnnSource::load(&dir, BackendKind::Ndarray)
@@ -335,14 +322,14 @@ fn sdfcnn_checkpoints_that_do_not_fit_are_clear_errors() {
         .to_string();
     assert!(e.contains("not an SDFCNN"), "{e}");
     // Not weights at all.
-    std::fs::write(dir.join("config.toml"), TINY_TOML).unwrap();
+    std::fs::write(dir.join("config.toml"), common::TINY_SDFCNN_TOML).unwrap();
     std::fs::write(dir.join("model.bpk"), b"garbage").unwrap();
     let e = SdfcnnSource::load(&dir, BackendKind::Ndarray)
         .unwrap_err()
         .to_string();
     assert!(e.contains("model.bpk"), "{e}");
     // A network that does not predict the map's 40 classes.
-    let cfg13 = tiny_config().with_num_classes(13);
+    let cfg13 = common::tiny_sdfcnn_config().with_num_classes(13);
     let device = BackendKind::Ndarray.device();
     let p = SdfcnnPredictor::from_model(cfg13.init(&device).unwrap(), cfg13, device);
     let e = SdfcnnSource::new(p).unwrap_err().to_string();

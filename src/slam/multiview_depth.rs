@@ -14,6 +14,7 @@
 //! than two steps away. Its depth is then the parabola's vertex through the best score and
 //! its neighbours. The rest keep the prediction (or are dropped, as the caller chooses).
 
+use super::config::MultiviewConfig;
 use crate::camera::Camera;
 use crate::dataset::DepthImage;
 use crate::geometry::Pose;
@@ -66,35 +67,6 @@ pub struct SweepReference<'a> {
     pub pose: Pose,
 }
 
-/// Settings of the plane sweep ([`MultiviewConfig`](super::config::MultiviewConfig) holds
-/// them with their documentation).
-#[derive(Debug, Clone, PartialEq)]
-pub struct SweepSettings {
-    pub steps: usize,
-    pub range: f64,
-    pub patch_radius: usize,
-    pub patch_step: usize,
-    pub min_ncc: f32,
-    pub min_texture: f32,
-    pub uniqueness: f32,
-    pub min_parallax_px: f64,
-}
-
-impl SweepSettings {
-    pub fn from_config(c: &super::config::MultiviewConfig) -> Self {
-        SweepSettings {
-            steps: c.steps,
-            range: c.range,
-            patch_radius: c.patch_radius,
-            patch_step: c.patch_step,
-            min_ncc: c.min_ncc,
-            min_texture: c.min_texture,
-            uniqueness: c.uniqueness,
-            min_parallax_px: c.min_parallax_px,
-        }
-    }
-}
-
 /// What one sweep did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct SweepSummary {
@@ -122,7 +94,7 @@ pub fn sweep_depth(
     refs: &[SweepReference],
     camera: &Camera,
     stride: u32,
-    s: &SweepSettings,
+    s: &MultiviewConfig,
 ) -> (DepthImage, SweepSummary) {
     let (w, h) = (predicted.width as usize, predicted.height as usize);
     let mut out = DepthImage::new(w as u32, h as u32);
@@ -220,7 +192,7 @@ fn sweep_pixel(
     d: f64,
     rays: &[RefRay],
     camera: &Camera,
-    s: &SweepSettings,
+    s: &MultiviewConfig,
     sc: &mut Scratch,
     sum: &mut SweepSummary,
 ) -> Option<f64> {
@@ -483,17 +455,8 @@ mod tests {
         out
     }
 
-    fn settings() -> SweepSettings {
-        SweepSettings {
-            steps: 24,
-            range: 0.3,
-            patch_radius: 2,
-            patch_step: 2,
-            min_ncc: 0.8,
-            min_texture: 3.0,
-            uniqueness: 0.6,
-            min_parallax_px: 4.0,
-        }
+    fn settings() -> MultiviewConfig {
+        MultiviewConfig::default()
     }
 
     #[test]

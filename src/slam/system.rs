@@ -11,9 +11,7 @@ use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correcti
 use super::depth_edges::drop_depth_edges;
 use super::keypoints::KeypointSource;
 use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
-use super::multiview_depth::{
-    GrayView, SweepReference, SweepSettings, SweepSummary, merge_measured, sweep_depth,
-};
+use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
 use super::tracking::{
@@ -424,7 +422,7 @@ impl LocalMapper {
             &references,
             &self.camera,
             stride,
-            &SweepSettings::from_config(mv),
+            mv,
         );
         self.multiview.candidates += summary.candidates;
         self.multiview.confirmed += summary.confirmed;

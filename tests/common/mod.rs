@@ -2,6 +2,8 @@
 //! `mod common;`).
 #![allow(dead_code)]
 
+use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig, SdfcnnPredictor};
+use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 
 /// A path under the system's temporary folder unique to this test process,
@@ -22,4 +24,27 @@ pub fn fresh_dir(group: &str, name: &str) -> PathBuf {
 /// The crate's root folder.
 pub fn manifest_dir() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The training config of [`tiny_sdfcnn_config`], as a checkpoint's `config.toml`.
+pub const TINY_SDFCNN_TOML: &str =
+    "model = \"sdfcnn\"\n[network]\ninner_size = [32, 48]\ndecoder_dim = 16\ncrp_stages = 1\n";
+
+/// A tiny SDFCNN (32x48 inside, decoder 16, one CRP stage) for tests.
+pub fn tiny_sdfcnn_config() -> SdfcnnConfig {
+    SdfcnnConfig::new()
+        .with_inner_size([32, 48])
+        .with_decoder_dim(16)
+        .with_crp_stages(1)
+}
+
+/// Writes `model` (built from [`tiny_sdfcnn_config`] on ndarray) as a checkpoint folder
+/// in half precision, as the bundled weights are: `dir/model.bpk` + `dir/config.toml`.
+pub fn write_tiny_sdfcnn(dir: &Path, model: Sdfcnn) {
+    std::fs::create_dir_all(dir).unwrap();
+    // (f16 tensors live on flex: ndarray has none.)
+    SdfcnnPredictor::from_model(model, tiny_sdfcnn_config(), BackendKind::Ndarray.device())
+        .save_f16(&dir.join("model.bpk"))
+        .unwrap();
+    std::fs::write(dir.join("config.toml"), TINY_SDFCNN_TOML).unwrap();
 }

@@ -38,15 +38,22 @@ pub fn write_atomic_with(
 
 /// Flushes the directory entry of `path` (a rename or a new file) to disk, so that after a
 /// power cut the folder holds either the old file or the new one. Directories cannot be
-/// opened as files on every platform; there it does nothing.
+/// opened as files on every platform, and some file systems refuse to flush one (the
+/// file itself is already on disk then); there it does nothing.
 pub fn sync_parent(path: &Path) -> std::io::Result<()> {
     #[cfg(unix)]
     {
+        use std::io::ErrorKind::{InvalidInput, PermissionDenied, Unsupported};
         let dir = path
             .parent()
             .filter(|d| !d.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        std::fs::File::open(dir)?.sync_all()?;
+        match std::fs::File::open(dir).and_then(|d| d.sync_all()) {
+            Err(e) if !matches!(e.kind(), InvalidInput | PermissionDenied | Unsupported) => {
+                return Err(e);
+            }
+            _ => {}
+        }
     }
     #[cfg(not(unix))]
     let _ = path;

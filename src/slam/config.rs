@@ -352,12 +352,6 @@ pub struct MultiviewConfig {
     /// columns of cells (rows in proportion; bilinear between cell centres; a cell with
     /// fewer than 100 measured pixels takes the keyframe's median; 0: not corrected).
     pub rescale_cells: usize,
-    /// The keyframe's keypoints take the measured depth too (tracking, local correction).
-    /// Off by default: tracking keeps SDFCNN's depth, which re-anchors the scale at every
-    /// keyframe (on the synthetic box room of `tests/slam_system.rs`, whose predicted depth
-    /// is exact, measured keypoints tripled the ATE; on 7-Scenes 600-699 the map was as
-    /// accurate either way).
-    pub keypoints: bool,
 }
 
 impl Default for MultiviewConfig {
@@ -377,7 +371,6 @@ impl Default for MultiviewConfig {
             min_parallax_px: 4.0,
             keep_unconfirmed: true,
             rescale_cells: 8,
-            keypoints: false,
         }
     }
 }

@@ -336,6 +336,7 @@ fn corpus() -> Vec<Case> {
             .file("gt.txt", "1.0 0 0 0 0 0 0 1\n"),
         case("missing trajectory", "eval", &["ate", "nofile.txt", "est.txt"], &["nofile.txt"])
             .file("est.txt", trajectory),
+        case("no keypoints", "eval", &["matching", "--sequence", "seq", "--keypoints", "0"], &["--keypoints", "got 0"]),
         // Training configs.
         case("batch size 1e12", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "batch_size"])
             .file("t.toml", &tiny_training_config("batch_size = 2", "batch_size = 1000000000000")),

@@ -127,6 +127,10 @@ struct MatchingArgs {
     /// (half-cell shifts; each placement is one more network pass).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
+    /// Keypoints per image, for both methods (the paper: 500; FPFDCNN keeps the most
+    /// probable, ORB the strongest FAST corners over its pyramid).
+    #[arg(long, default_value_t = 500)]
+    keypoints: usize,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -213,6 +217,12 @@ fn matching(a: MatchingArgs) -> Result<()> {
         a.ratio
     );
     anyhow::ensure!(
+        (1..=sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS).contains(&a.keypoints),
+        "--keypoints must be in [1, {}], got {}",
+        sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS,
+        a.keypoints
+    );
+    anyhow::ensure!(
         (0.0..=256.0).contains(&a.ratio_exclusion),
         "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
         a.ratio_exclusion
@@ -241,6 +251,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 grid_shifts: a.grid_shifts,
                 nms_radius: a.nms,
                 smoothing: a.smoothing,
+                top_k: a.keypoints,
                 ..Default::default()
             };
             FpfdcnnDetector::load(p, a.backend, cfg)
@@ -258,6 +269,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
             .transpose()?,
         ..Default::default()
     };
+    cfg.orb.n_features = a.keypoints;
     cfg.range.window = a.window;
     cfg.range.mutual = !a.no_mutual;
     cfg.range.ratio = (a.ratio < 1.0).then_some(a.ratio);

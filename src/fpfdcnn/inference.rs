@@ -51,6 +51,12 @@ pub struct DetectorConfig {
 impl DetectorConfig {
     /// Checks ranges; the message names the field.
     pub fn validate(&self) -> std::result::Result<(), String> {
+        if self.top_k > MAX_KEYPOINTS {
+            return Err(format!(
+                "top_k must be at most {MAX_KEYPOINTS} keypoints (0: all), got {}",
+                self.top_k
+            ));
+        }
         if !self.threshold.is_finite() {
             return Err(format!(
                 "threshold must be a number, got {}",
@@ -78,6 +84,9 @@ impl DetectorConfig {
         Ok(())
     }
 }
+
+/// Upper bound of [`DetectorConfig::top_k`].
+pub const MAX_KEYPOINTS: usize = 100_000;
 
 /// Default [`DetectorConfig::smoothing`].
 pub const DEFAULT_SMOOTHING: f32 = 2.0;

@@ -12,7 +12,7 @@ use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
 use sdf_slam::slam::defaults::{default_sequence_config, generate_sequence};
 use sdf_slam::slam::map::points_from_depth;
-use sdf_slam::slam::report::write_outputs;
+use sdf_slam::slam::output::write_outputs;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
@@ -282,7 +282,7 @@ fn monocular_mode_tracks_with_sdfcnn_depth() {
             .all(|p| p.translation.vector.iter().all(|v| v.is_finite()))
     );
     let dir = tmp_dir("mono_out");
-    sdf_slam::slam::report::write_trajectory(&out, &dir).unwrap();
+    sdf_slam::slam::output::write_trajectory(&out, &dir).unwrap();
     assert_eq!(
         Trajectory::read_tum(dir.join("trajectory.txt"))
             .unwrap()

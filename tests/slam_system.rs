@@ -10,8 +10,9 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{Alignment, ape};
-use sdf_slam::slam::report::{MapAccuracy, write_outputs, write_trajectory};
-use sdf_slam::slam::semantic_map::read_ply;
+use sdf_slam::slam::output::{write_outputs, write_trajectory};
+use sdf_slam::slam::ply::read_ply;
+use sdf_slam::slam::report::MapAccuracy;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{

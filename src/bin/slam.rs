@@ -22,7 +22,7 @@ use sdf_slam::slam::defaults::{
     BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, bundled_weights, default_sequence,
     default_sequence_config, generate_sequence,
 };
-use sdf_slam::slam::report::{write_outputs, write_trajectory};
+use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
 use sdf_slam::slam::tracking::FrameRecord;
 use sdf_slam::slam::{

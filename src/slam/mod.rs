@@ -6,26 +6,31 @@
 //!   keyframes, relocalisation;
 //! * mapping ([`system::LocalMapper`]) — semantics and depth of keyframes
 //!   ([`semantic_source`]: SDFCNN, ground truth or none) fused into the 3D
-//!   semantic map ([`semantic_map`], IV-C);
+//!   semantic map ([`semantic_map`], IV-C), written by [`ply`], drawn by [`topdown`];
 //! * [`correction`] — data correction (IV-A): keyframe-pair constraints and a
 //!   pose graph ([`pose_graph`]), plus local unification of matched points;
 //! * [`system`] — the three stages as threads passing messages, or in order on
-//!   one thread; [`report`] — trajectories, PLY map, pictures, ATE/RPE and
-//!   Table 11 accuracy; [`config`] — every tunable; [`defaults`] — bundled
-//!   weights and the generated default sequence.
+//!   one thread; [`evaluation`] — ATE/RPE and Table 11 accuracy against ground
+//!   truth; [`report`] — `report.md` / `report.json`; [`output`] — every file
+//!   of a run; [`config`] — every tunable; [`defaults`] — bundled weights and the
+//!   generated default sequence.
 
 pub mod config;
 pub mod correction;
 pub mod defaults;
 pub mod depth_edges;
+pub mod evaluation;
 pub mod keypoints;
 pub mod map;
 pub mod multiview_depth;
+pub mod output;
+pub mod ply;
 pub mod pose_graph;
 pub mod report;
 pub mod semantic_map;
 pub mod semantic_source;
 pub mod system;
+pub mod topdown;
 pub mod tracking;
 
 pub use config::SlamConfig;

@@ -38,7 +38,7 @@ fn retire_manifest(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Writes every output into `dir` (the report last, see [`retire_manifest`]) and returns
+/// Writes every output into `dir` (the report last, see `retire_manifest`) and returns
 /// the report.
 pub fn write_outputs(
     out: &SlamOutput,

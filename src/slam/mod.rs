@@ -4,7 +4,7 @@
 //! * [`tracking`] — camera pose estimation (IV-B): keypoints ([`keypoints`]:
 //!   FPFDCNN or ORB), range matching (eq 8), PnP + RANSAC (eqs 9-10),
 //!   keyframes, relocalisation;
-//! * mapping ([`system::LocalMapper`]) — semantics and depth of keyframes
+//! * mapping ([`local_mapper::LocalMapper`]) — semantics and depth of keyframes
 //!   ([`semantic_source`]: SDFCNN, ground truth or none) fused into the 3D
 //!   semantic map ([`semantic_map`], IV-C), written by [`ply`], drawn by [`topdown`];
 //! * [`correction`] — data correction (IV-A): keyframe-pair constraints and a
@@ -21,6 +21,7 @@ pub mod defaults;
 pub mod depth_edges;
 pub mod evaluation;
 pub mod keypoints;
+pub mod local_mapper;
 pub mod map;
 pub mod multiview_depth;
 pub mod output;

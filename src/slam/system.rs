@@ -8,25 +8,22 @@
 
 use super::config::SlamConfig;
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
-use super::depth_edges::drop_depth_edges;
 use super::keypoints::KeypointSource;
-use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
-use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
+use super::local_mapper::{LocalMapper, MapperInput};
+use super::map::{KeyframeFeatures, Map, SharedMap, write};
+use super::multiview_depth::SweepSummary;
 use super::semantic_map::SemanticMap;
-use super::semantic_source::{SemanticInput, SemanticSource};
-use super::tracking::{
-    FrameRecord, FrameStatus, NewKeyframe, TrackInput, Tracker, TrackingCounters,
-};
+use super::semantic_source::SemanticSource;
+use super::tracking::{FrameRecord, FrameStatus, TrackInput, Tracker, TrackingCounters};
 use crate::camera::Camera;
-use crate::dataset::{DepthImage, LabelImage, TumSequence};
+use crate::dataset::{DepthImage, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::orb::rgb_to_gray;
-use crate::geometry::{Pose, renormalized};
+use crate::geometry::Pose;
 use crate::trajectory::Trajectory;
 use image::RgbImage;
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, sync_channel};
 use std::sync::{Arc, RwLock};
@@ -220,279 +217,6 @@ impl SlamOutput {
     }
 }
 
-/// A keyframe on its way to mapping, with its full-resolution images.
-pub struct MapperInput {
-    pub keyframe: NewKeyframe,
-    pub rgb: RgbImage,
-    /// Sensor depth (RGB-D).
-    pub depth: Option<DepthImage>,
-}
-
-/// The mapping stage: semantics of each keyframe, insertion into the map,
-/// fusion into the voxel grid. Keyframes that correction moved are re-fused a few
-/// at a time (the most moved first: taken out at the pose they were fused with and
-/// fused again at their new one), so the work per keyframe stays bounded; the final
-/// map is re-fused from every final pose.
-pub struct LocalMapper {
-    cfg: SlamConfig,
-    camera: Camera,
-    monocular: bool,
-    semantics: Box<dyn SemanticSource>,
-    map: SharedMap,
-    log: Log,
-    pub semantic_map: SemanticMap,
-    fused_epoch: u64,
-    /// The pose and depth scale each keyframe was fused with.
-    fused: Vec<(Pose, f64)>,
-    pub failures: Vec<(usize, String)>,
-    pub semantics_time: StageTime,
-    pub multiview_time: StageTime,
-    pub multiview: SweepSummary,
-    /// Full-resolution grey images of the last `multiview.look_back` keyframes (monocular
-    /// mode) with their index in the map: the references of multi-view depth.
-    recent: VecDeque<(usize, Arc<GrayView>)>,
-    pub fusion_time: StageTime,
-}
-
-impl LocalMapper {
-    pub fn new(
-        cfg: SlamConfig,
-        camera: Camera,
-        monocular: bool,
-        semantics: Box<dyn SemanticSource>,
-        map: SharedMap,
-        log: Log,
-    ) -> Self {
-        let voxel = cfg.map.voxel_size;
-        LocalMapper {
-            cfg,
-            camera,
-            monocular,
-            semantics,
-            map,
-            log,
-            semantic_map: SemanticMap::new(voxel),
-            fused_epoch: 0,
-            fused: Vec::new(),
-            failures: Vec::new(),
-            semantics_time: StageTime::default(),
-            multiview_time: StageTime::default(),
-            multiview: SweepSummary::default(),
-            recent: VecDeque::new(),
-            fusion_time: StageTime::default(),
-        }
-    }
-
-    /// Processes a keyframe; returns its features with 3D points from the
-    /// depth used (predicted in monocular mode), for tracking.
-    pub fn process(&mut self, input: MapperInput) -> Arc<KeyframeFeatures> {
-        let kf = input.keyframe;
-        let (w, h) = input.rgb.dimensions();
-        let t = Instant::now();
-        let sem = SemanticInput {
-            index: kf.frame_index,
-            stamp: kf.stamp,
-            rgb: &input.rgb,
-        };
-        let (labels, predicted) = match self.semantics.predict(&sem) {
-            Ok(r) => r,
-            Err(e) => {
-                let msg = e.to_string();
-                (self.log)(&format!(
-                    "warning: keyframe {} (frame {}): {} labels failed: {msg}; using void labels",
-                    kf.id,
-                    kf.frame_index,
-                    self.semantics.name()
-                ));
-                self.failures.push((kf.frame_index, msg));
-                (LabelImage::new(w, h, crate::dataset::labels::VOID), None)
-            }
-        };
-        self.semantics_time.add(t);
-        let depth = if self.monocular {
-            predicted
-        } else {
-            input.depth
-        };
-        let mut depth = depth.unwrap_or_else(|| DepthImage::new(w, h));
-        let track = if self.monocular {
-            // The keypoints' 3D points come from the predicted depth.
-            Arc::new(KeyframeFeatures::new(
-                kf.track.features.clone(),
-                Some(&depth),
-                &self.camera,
-                (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth),
-            ))
-        } else {
-            kf.track.clone()
-        };
-        drop_depth_edges(
-            &mut depth,
-            self.cfg.map.depth_edge_reach,
-            self.cfg.map.depth_edge_ratio,
-        );
-        let mut view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
-        let mut gray = None;
-        if self.monocular && self.cfg.multiview.references > 0 {
-            let t = Instant::now();
-            let g = Arc::new(GrayView::from_rgb(&input.rgb));
-            self.measure_depth(&kf.pose, &g, &mut view);
-            gray = Some(g);
-            self.multiview_time.add(t);
-        }
-        let t = Instant::now();
-        {
-            let mut m = write(&self.map);
-            let pose = corrected_pose(&m, &kf.pose);
-            if let Some(g) = gray {
-                self.recent.push_back((m.keyframes.len(), g));
-                if self.recent.len() > self.cfg.multiview.look_back {
-                    self.recent.pop_front();
-                }
-            }
-            m.keyframes.push(KeyFrame {
-                id: kf.id,
-                frame_index: kf.frame_index,
-                stamp: kf.stamp,
-                odom_pose: kf.pose,
-                pose,
-                gt_pose: kf.gt_pose,
-                track: track.clone(),
-                view,
-                depth_scale: 1.0,
-            });
-        }
-        {
-            let m = read(&self.map);
-            if let Some(k) = m.keyframes.last() {
-                self.semantic_map
-                    .fuse(k, &k.pose, k.depth_scale, &self.camera, &self.cfg.map);
-                self.fused.push((k.pose, k.depth_scale));
-            }
-        }
-        self.refuse_moved(self.cfg.map.refuse_per_keyframe);
-        self.fusion_time.add(t);
-        track
-    }
-
-    /// Measures the depth of a monocular keyframe's view against earlier keyframes
-    /// ([`super::multiview_depth`]); measured pixels replace the prediction in the view. The
-    /// keypoints keep SDFCNN's depth, which re-anchors the scale at every keyframe (on the
-    /// box room of `tests/slam_system.rs`, whose predicted depth is exact, measured
-    /// keypoints tripled the ATE; on 7-Scenes 600-699 the map was as accurate either way).
-    fn measure_depth(&mut self, odom_pose: &Pose, gray: &GrayView, view: &mut KeyframeView) {
-        let mv = &self.cfg.multiview;
-        let (pose, refs) = {
-            let m = read(&self.map);
-            let pose = corrected_pose(&m, odom_pose);
-            let axis = pose.rotation * Vector3::z();
-            let mut near: Vec<(f64, Arc<GrayView>, Pose)> = self
-                .recent
-                .iter()
-                .filter_map(|(i, g)| {
-                    let k = m.keyframes.get(*i)?;
-                    let baseline = (k.pose.translation.vector - pose.translation.vector).norm();
-                    let angle = (k.pose.rotation * Vector3::z()).angle(&axis).to_degrees();
-                    (baseline >= mv.min_baseline && angle <= mv.max_angle_deg)
-                        .then(|| (baseline, g.clone(), k.pose))
-                })
-                .collect();
-            // The widest baselines first: depth from parallax is more precise.
-            near.sort_by(|a, b| b.0.total_cmp(&a.0));
-            near.truncate(mv.references);
-            (pose, near)
-        };
-        if refs.is_empty() {
-            return;
-        }
-        let references: Vec<SweepReference> = refs
-            .iter()
-            .map(|(_, image, pose)| SweepReference { image, pose: *pose })
-            .collect();
-        let stride = view.stride;
-        let (measured, summary) = sweep_depth(
-            gray,
-            &pose,
-            &view.depth,
-            &references,
-            &self.camera,
-            stride,
-            mv,
-        );
-        self.multiview.candidates += summary.candidates;
-        self.multiview.confirmed += summary.confirmed;
-        merge_measured(
-            &mut view.depth,
-            &measured,
-            mv.keep_unconfirmed,
-            mv.rescale_cells,
-        );
-    }
-
-    /// How far a keyframe's fused view lies from where it is now, metres: the
-    /// translation plus the rotation's arc at `max_depth`, and the depth-scale change
-    /// at `max_depth`.
-    fn displacement(&self, k: &KeyFrame, (pose, scale): &(Pose, f64)) -> f64 {
-        let reach = self.cfg.map.max_depth;
-        let d = pose.inverse() * k.pose;
-        d.translation.vector.norm()
-            + d.rotation.angle() * reach
-            + (k.depth_scale - scale).abs() * reach
-    }
-
-    /// Re-fuses the (at most `limit`) keyframes that correction moved most, by more than a
-    /// voxel, since they were fused.
-    fn refuse_moved(&mut self, limit: usize) {
-        let m = read(&self.map);
-        if m.epoch == self.fused_epoch || limit == 0 {
-            return;
-        }
-        let mut moved: Vec<(f64, usize)> = m
-            .keyframes
-            .iter()
-            .zip(&self.fused)
-            .enumerate()
-            .map(|(i, (k, f))| (self.displacement(k, f), i))
-            .filter(|(d, _)| *d > self.cfg.map.voxel_size)
-            .collect();
-        if moved.len() <= limit {
-            // Everything moved is re-fused now: up to date with this correction.
-            self.fused_epoch = m.epoch;
-        }
-        moved.sort_by(|a, b| b.0.total_cmp(&a.0));
-        for &(_, i) in moved.iter().take(limit) {
-            let (k, (pose, scale)) = (&m.keyframes[i], self.fused[i]);
-            let cfg = &self.cfg.map;
-            self.semantic_map.unfuse(k, &pose, scale, &self.camera, cfg);
-            self.semantic_map
-                .fuse(k, &k.pose, k.depth_scale, &self.camera, cfg);
-            self.fused[i] = (k.pose, k.depth_scale);
-        }
-    }
-
-    /// Rebuilds the voxel map from every keyframe's current pose and depth scale.
-    pub fn refuse_all(&mut self) {
-        let m = read(&self.map);
-        self.semantic_map.clear();
-        self.fused.clear();
-        for k in &m.keyframes {
-            self.semantic_map
-                .fuse(k, &k.pose, k.depth_scale, &self.camera, &self.cfg.map);
-            self.fused.push((k.pose, k.depth_scale));
-        }
-        self.fused_epoch = m.epoch;
-    }
-}
-
-/// A keyframe's tracked pose made to follow the corrections made so far (those of the
-/// last keyframe in the map).
-fn corrected_pose(m: &Map, odom_pose: &Pose) -> Pose {
-    match m.keyframes.last() {
-        Some(last) => renormalized(&(last.pose * last.odom_pose.inverse() * odom_pose)),
-        None => *odom_pose,
-    }
-}
-
 /// A decoded frame.
 struct Loaded {
     rgb: RgbImage,
@@ -536,18 +260,20 @@ struct TrackingRun {
 /// The tracking stage over the frames: load, features, track; keyframes go to
 /// `on_keyframe` (which may answer with predicted-depth 3D points), frames to
 /// `on_frame`.
-#[allow(clippy::too_many_arguments)]
 fn tracking_loop(
-    seq: &TumSequence,
-    n: usize,
+    frames: &Frames,
     tracker: Tracker,
     keypoints: &dyn KeypointSource,
-    monocular: bool,
-    stop: &AtomicBool,
-    log: &Log,
     mut on_keyframe: impl FnMut(MapperInput) -> Option<Arc<KeyframeFeatures>>,
     mut on_frame: impl FnMut(&FrameRecord, Progress),
 ) -> TrackingRun {
+    let Frames {
+        sequence: seq,
+        n,
+        monocular,
+        ref stop,
+        ref log,
+    } = *frames;
     let mut run = TrackingRun {
         tracker,
         frames: Vec::new(),
@@ -701,135 +427,54 @@ impl Slam {
         let map: SharedMap = Arc::new(RwLock::new(Map::default()));
         let keypoint_source = keypoints.name();
         let semantic_source = semantics.name();
-        let tracker = Tracker::new(config.clone(), camera.clone(), monocular);
-        let mut mapper = LocalMapper::new(
-            config.clone(),
-            camera.clone(),
+        let stages = Stages {
+            tracker: Tracker::new(config.clone(), camera.clone(), monocular),
+            keypoints,
+            mapper: LocalMapper::new(
+                config.clone(),
+                camera.clone(),
+                monocular,
+                semantics,
+                map.clone(),
+                control.log.clone(),
+            ),
+            correction: CorrectionStage {
+                corrector: Corrector::new(config.clone(), camera.clone()),
+                online: config.correction.optimise_online,
+                time: StageTime::default(),
+                optimisation: StageTime::default(),
+            },
+        };
+        let frames = Frames {
+            sequence: &sequence,
+            n,
             monocular,
-            semantics,
-            map.clone(),
-            control.log.clone(),
-        );
-        let mut corrector = Corrector::new(config.clone(), camera.clone());
-        let mut timings = Timings::default();
-        let online = config.correction.optimise_online;
-        let log = control.log.clone();
-        let stop = control.stop.clone();
+            stop: control.stop.clone(),
+            log: control.log.clone(),
+        };
         let mut on_frame = control.on_frame.take();
         let mut notify = |r: &FrameRecord, p: Progress| {
             if let Some(f) = on_frame.as_mut() {
                 f(r, &p);
             }
         };
-        let run = if config.system.threads {
-            let (run, m, c, corr_time, opt_time) = std::thread::scope(|s| -> Result<_> {
-                let (kf_tx, kf_rx) = sync_channel::<MapperInput>(config.system.queue);
-                let (reply_tx, reply_rx) = channel::<Arc<KeyframeFeatures>>();
-                let (corr_tx, corr_rx) = sync_channel::<usize>(config.system.queue * 4);
-                // Bounded: tracking stays within two frames of the caller, so a
-                // stop request (Ctrl-C) takes effect at once.
-                let (ev_tx, ev_rx) = sync_channel::<(FrameRecord, Progress)>(2);
-                let mapping = s.spawn(move || {
-                    for input in kf_rx {
-                        let id = input.keyframe.id;
-                        let track = mapper.process(input);
-                        if monocular && reply_tx.send(track).is_err() {
-                            break;
-                        }
-                        if corr_tx.send(id).is_err() {
-                            break;
-                        }
-                    }
-                    mapper
-                });
-                let map_c = map.clone();
-                let correction = s.spawn(move || {
-                    let (mut ct, mut ot) = (StageTime::default(), StageTime::default());
-                    for id in corr_rx {
-                        let t = Instant::now();
-                        let loops = corrector.add_keyframe(&map_c, id);
-                        ct.add(t);
-                        if loops && online {
-                            let t = Instant::now();
-                            corrector.optimise(&map_c);
-                            ot.add(t);
-                        }
-                    }
-                    (corrector, ct, ot)
-                });
-                let seq = &sequence;
-                let (stop_t, log_t) = (stop.clone(), log.clone());
-                let tracking = s.spawn(move || {
-                    tracking_loop(
-                        seq,
-                        n,
-                        tracker,
-                        keypoints.as_ref(),
-                        monocular,
-                        &stop_t,
-                        &log_t,
-                        |input| {
-                            kf_tx.send(input).ok()?;
-                            if monocular {
-                                reply_rx.recv().ok()
-                            } else {
-                                None
-                            }
-                        },
-                        |r, p| {
-                            let _ = ev_tx.send((r.clone(), p));
-                        },
-                    )
-                });
-                for (r, p) in ev_rx {
-                    notify(&r, p);
-                }
-                let run = tracking.join().map_err(|_| panicked("tracking"))?;
-                let m = mapping.join().map_err(|_| panicked("mapping"))?;
-                let (c, ct, ot) = correction.join().map_err(|_| panicked("correction"))?;
-                Ok((run, m, c, ct, ot))
-            })?;
-            mapper = m;
-            corrector = c;
-            timings.correction = corr_time;
-            timings.optimisation = opt_time;
-            run
+        let (run, mut mapper, mut correction) = if config.system.threads {
+            run_threaded(&frames, stages, &map, config.system.queue, &mut notify)?
         } else {
-            let (mut ct, mut ot) = (StageTime::default(), StageTime::default());
-            let run = tracking_loop(
-                &sequence,
-                n,
-                tracker,
-                keypoints.as_ref(),
-                monocular,
-                &stop,
-                &log,
-                |input| {
-                    let id = input.keyframe.id;
-                    let track = mapper.process(input);
-                    let t = Instant::now();
-                    let loops = corrector.add_keyframe(&map, id);
-                    ct.add(t);
-                    if loops && online {
-                        let t = Instant::now();
-                        corrector.optimise(&map);
-                        ot.add(t);
-                    }
-                    monocular.then_some(track)
-                },
-                &mut notify,
-            );
-            timings.correction = ct;
-            timings.optimisation = ot;
-            run
+            run_in_order(&frames, stages, &map, &mut notify)
         };
-        timings.load = run.load;
-        timings.features = run.features;
-        timings.tracking = run.tracking;
-        timings.semantics = mapper.semantics_time;
+        let mut timings = Timings {
+            load: run.load,
+            features: run.features,
+            tracking: run.tracking,
+            semantics: mapper.semantics_time,
+            correction: correction.time,
+            optimisation: correction.optimisation,
+            ..Timings::default()
+        };
         // Final correction from all constraints, local correction, re-fusion.
         let t = Instant::now();
-        corrector.optimise(&map);
+        correction.corrector.optimise(&map);
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
         mapper.refuse_all();
         timings.finalisation.add(t);
@@ -843,7 +488,7 @@ impl Slam {
         } = mapper;
         let map = std::mem::take(&mut *write(&map));
         if run.interrupted {
-            log(&format!(
+            (control.log)(&format!(
                 "interrupted after {} of {n} frames: writing what was tracked",
                 run.frames.len()
             ));
@@ -856,7 +501,7 @@ impl Slam {
             local,
             multiview,
             tracking: run.tracker.counters.clone(),
-            correction: corrector.stats,
+            correction: correction.corrector.stats,
             skipped: run.skipped,
             semantic_failures: failures,
             timings,
@@ -869,6 +514,146 @@ impl Slam {
             semantic_source,
         })
     }
+}
+
+/// The frames a run goes over, and how it is told to stop.
+struct Frames<'a> {
+    sequence: &'a TumSequence,
+    n: usize,
+    monocular: bool,
+    stop: Arc<AtomicBool>,
+    log: Log,
+}
+
+/// The three stages before a run.
+struct Stages {
+    tracker: Tracker,
+    keypoints: Box<dyn KeypointSource>,
+    mapper: LocalMapper,
+    correction: CorrectionStage,
+}
+
+/// Data correction's share of each keyframe, the same in both run orders: keyframe-pair
+/// constraints and, when a loop closes and `correction.optimise_online` is set, a
+/// pose-graph solve.
+struct CorrectionStage {
+    corrector: Corrector,
+    online: bool,
+    time: StageTime,
+    optimisation: StageTime,
+}
+
+impl CorrectionStage {
+    fn add_keyframe(&mut self, map: &SharedMap, id: usize) {
+        let t = Instant::now();
+        let loops = self.corrector.add_keyframe(map, id);
+        self.time.add(t);
+        if loops && self.online {
+            let t = Instant::now();
+            self.corrector.optimise(map);
+            self.optimisation.add(t);
+        }
+    }
+}
+
+/// Tracking, mapping and correction as three threads passing messages; frame events
+/// reach `notify` on the calling thread.
+fn run_threaded(
+    frames: &Frames,
+    stages: Stages,
+    map: &SharedMap,
+    queue: usize,
+    notify: &mut impl FnMut(&FrameRecord, Progress),
+) -> Result<(TrackingRun, LocalMapper, CorrectionStage)> {
+    let Stages {
+        tracker,
+        keypoints,
+        mut mapper,
+        mut correction,
+    } = stages;
+    let monocular = frames.monocular;
+    std::thread::scope(|s| -> Result<_> {
+        let (kf_tx, kf_rx) = sync_channel::<MapperInput>(queue);
+        let (reply_tx, reply_rx) = channel::<Arc<KeyframeFeatures>>();
+        let (corr_tx, corr_rx) = sync_channel::<usize>(queue * 4);
+        // Bounded: tracking stays within two frames of the caller, so a
+        // stop request (Ctrl-C) takes effect at once.
+        let (ev_tx, ev_rx) = sync_channel::<(FrameRecord, Progress)>(2);
+        let mapping = s.spawn(move || {
+            for input in kf_rx {
+                let id = input.keyframe.id;
+                let track = mapper.process(input);
+                if monocular && reply_tx.send(track).is_err() {
+                    break;
+                }
+                if corr_tx.send(id).is_err() {
+                    break;
+                }
+            }
+            mapper
+        });
+        let map_c = map.clone();
+        let correcting = s.spawn(move || {
+            for id in corr_rx {
+                correction.add_keyframe(&map_c, id);
+            }
+            correction
+        });
+        let tracking = s.spawn(move || {
+            tracking_loop(
+                frames,
+                tracker,
+                keypoints.as_ref(),
+                |input| {
+                    kf_tx.send(input).ok()?;
+                    if monocular {
+                        reply_rx.recv().ok()
+                    } else {
+                        None
+                    }
+                },
+                |r, p| {
+                    let _ = ev_tx.send((r.clone(), p));
+                },
+            )
+        });
+        for (r, p) in ev_rx {
+            notify(&r, p);
+        }
+        let run = tracking.join().map_err(|_| panicked("tracking"))?;
+        let mapper = mapping.join().map_err(|_| panicked("mapping"))?;
+        let correction = correcting.join().map_err(|_| panicked("correction"))?;
+        Ok((run, mapper, correction))
+    })
+}
+
+/// The same stages in order on the calling thread: each keyframe is mapped and
+/// corrected before the next frame is tracked.
+fn run_in_order(
+    frames: &Frames,
+    stages: Stages,
+    map: &SharedMap,
+    notify: &mut impl FnMut(&FrameRecord, Progress),
+) -> (TrackingRun, LocalMapper, CorrectionStage) {
+    let Stages {
+        tracker,
+        keypoints,
+        mut mapper,
+        mut correction,
+    } = stages;
+    let run = tracking_loop(
+        frames,
+        tracker,
+        keypoints.as_ref(),
+        |input| {
+            let id = input.keyframe.id;
+            let track = mapper.process(input);
+            correction.add_keyframe(map, id);
+            frames.monocular.then_some(track)
+        },
+        notify,
+    );
+    (run, mapper, correction)
 }
 
 /// Frames with a given status.

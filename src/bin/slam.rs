@@ -170,16 +170,11 @@ fn generate_default_sequence(dest: &Path) -> Result<()> {
     Ok(())
 }
 
-fn main() -> Result<()> {
-    let cli = Cli::parse();
-    let mut config = match &cli.config {
-        Some(p) => SlamConfig::load(p)?,
-        None => SlamConfig::default(),
-    };
-    if cli.single_thread {
-        config.system.threads = false;
-    }
-    // The networks first: weights that do not fit fail before anything else happens.
+/// FPFDCNN (given or bundled weights) or ORB keypoints, with the checkpoint used.
+fn keypoint_source(
+    cli: &Cli,
+    config: &SlamConfig,
+) -> Result<(FeaturesArg, Option<PathBuf>, Box<dyn KeypointSource>)> {
     let fpfdcnn_ckpt = checkpoint(&cli.fpfdcnn, BUNDLED_FPFDCNN);
     let features = match cli.features {
         Some(f) => f,
@@ -208,6 +203,11 @@ fn main() -> Result<()> {
             Box::new(FpfdcnnSource { detector })
         }
     };
+    Ok((features, fpfdcnn_ckpt, keypoints))
+}
+
+/// The labels asked for (SDFCNN by default when weights exist) and SDFCNN loaded for them.
+fn sdfcnn_source(cli: &Cli) -> Result<(LabelsArg, Option<PathBuf>, Option<SdfcnnSource>)> {
     let sdfcnn_ckpt = checkpoint(&cli.sdfcnn, BUNDLED_SDFCNN);
     let labels = match cli.labels {
         Some(l) => l,
@@ -248,6 +248,12 @@ fn main() -> Result<()> {
             }
         );
     }
+    Ok((labels, sdfcnn_ckpt, sdfcnn))
+}
+
+/// The sequence (the default one, generated on first use, unless `--sequence`), from
+/// `--first` on.
+fn open_sequence(cli: &Cli) -> Result<(PathBuf, TumSequence)> {
     let sequence_path = match &cli.sequence {
         Some(p) if p != Path::new(DEFAULT_SEQUENCE) => {
             if !p.is_dir() {
@@ -275,6 +281,62 @@ fn main() -> Result<()> {
         }
         sequence.frames.drain(..cli.first);
     }
+    Ok((sequence_path, sequence))
+}
+
+/// The stop flag Ctrl-C sets (a second Ctrl-C quits at once, exit 130).
+fn stop_on_ctrl_c() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || {
+            if stop.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+            eprintln!("\nstopping after the current frame (Ctrl-C again to quit at once)");
+        })
+        .context("installing the Ctrl-C handler")?;
+    }
+    Ok(stop)
+}
+
+/// The progress bar, and the run's control: its log prints above the bar.
+fn progress(n: usize, stop: Arc<AtomicBool>) -> Result<(ProgressBar, Control)> {
+    let bar = ProgressBar::new(n as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} frames {per_sec} {msg}",
+        )
+        .map_err(|e| anyhow::anyhow!("{e}"))?
+        .progress_chars("=> "),
+    );
+    let log_bar = bar.clone();
+    let log: Log = Arc::new(move |m: &str| log_bar.suspend(|| eprintln!("{m}")));
+    let frame_bar = bar.clone();
+    let control = Control {
+        stop,
+        log,
+        on_frame: Some(Box::new(move |_r: &FrameRecord, p: &Progress| {
+            frame_bar.set_position(p.done as u64);
+            frame_bar.set_message(format!("keyframes {} lost {}", p.keyframes, p.lost));
+        })),
+    };
+    Ok((bar, control))
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let mut config = match &cli.config {
+        Some(p) => SlamConfig::load(p)?,
+        None => SlamConfig::default(),
+    };
+    if cli.single_thread {
+        config.system.threads = false;
+    }
+    // The networks first: weights that do not fit fail before anything else happens.
+    let (features, fpfdcnn_ckpt, keypoints) = keypoint_source(&cli, &config)?;
+    let (labels, sdfcnn_ckpt, sdfcnn) = sdfcnn_source(&cli)?;
+    let (sequence_path, sequence) = open_sequence(&cli)?;
     let camera = match &cli.camera {
         Some(spec) => Camera::load(spec)?,
         None if sequence_path.join("camera.toml").is_file() => {
@@ -318,17 +380,7 @@ fn main() -> Result<()> {
     };
     slam.validate()?;
     // The handler first: the header below tells a caller the run has started.
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || {
-            if stop.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-            eprintln!("\nstopping after the current frame (Ctrl-C again to quit at once)");
-        })
-        .context("installing the Ctrl-C handler")?;
-    }
+    let stop = stop_on_ctrl_c()?;
     eprintln!(
         "sequence {} ({n} frames), camera {}, {} mode, {} keypoints{}, {} labels{}, {}",
         sequence.root.display(),
@@ -351,25 +403,7 @@ fn main() -> Result<()> {
             "single thread"
         }
     );
-    let bar = ProgressBar::new(n as u64);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {pos}/{len} frames {per_sec} {msg}",
-        )
-        .map_err(|e| anyhow::anyhow!("{e}"))?
-        .progress_chars("=> "),
-    );
-    let log_bar = bar.clone();
-    let log: Log = Arc::new(move |m: &str| log_bar.suspend(|| eprintln!("{m}")));
-    let frame_bar = bar.clone();
-    let control = Control {
-        stop,
-        log,
-        on_frame: Some(Box::new(move |_r: &FrameRecord, p: &Progress| {
-            frame_bar.set_position(p.done as u64);
-            frame_bar.set_message(format!("keyframes {} lost {}", p.keyframes, p.lost));
-        })),
-    };
+    let (bar, control) = progress(n, stop)?;
     let output = slam.run(control)?;
     bar.finish_and_clear();
     // The trajectory first: it is what an interrupted run must not lose.

@@ -131,7 +131,6 @@ pub fn render_topdown(
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let mut zbuf = vec![f64::NEG_INFINITY; (w * h) as usize];
     let splat = (voxel_size * scale).ceil().clamp(1.0, 8.0) as i32;
-    let labelled = points.iter().any(|p| p.label != classes::VOID);
     for &(a, b, z, i) in &flat {
         let (x, y) = to_px(a, b);
         let p = &points[i];
@@ -155,15 +154,6 @@ pub fn render_topdown(
         }
     }
     crate::plot::register_fonts();
-    let mut hist = label_histogram(points);
-    hist[classes::NUM_CLASSES] = 0;
-    let mut present: Vec<(usize, usize)> = hist
-        .iter()
-        .enumerate()
-        .filter(|(_, n)| **n > 0)
-        .map(|(l, n)| (l, *n))
-        .collect();
-    present.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
     let err = |e: String| Error::msg(format!("drawing the top-down map failed: {e}"));
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -193,39 +183,66 @@ pub fn render_topdown(
             root.draw_text("1 m", &font.color(&BLACK), (bx, by - 20))
                 .map_err(|e| err(e.to_string()))?;
         }
-        let x0 = size as i32 + 10;
-        let mut y = 50;
-        let heading = if labelled {
-            "classes (points)"
-        } else {
-            "RGB colours (no labels)"
-        };
-        root.draw_text(heading, &font.color(&BLACK), (x0, y))
-            .map_err(|e| err(e.to_string()))?;
-        y += 26;
-        for (l, n) in present {
-            if y > h as i32 - 24 {
-                break;
-            }
-            let c = classes::colorize(l as u8);
-            root.draw(&Rectangle::new(
-                [(x0, y), (x0 + 18, y + 16)],
-                RGBColor(c[0], c[1], c[2]).filled(),
-            ))
-            .map_err(|e| err(e.to_string()))?;
-            root.draw_text(
-                &format!("{} ({n})", classes::display_name(l as u8)),
-                &font.color(&BLACK),
-                (x0 + 26, y),
-            )
-            .map_err(|e| err(e.to_string()))?;
-            y += 22;
-        }
+        draw_legend(&root, size as i32 + 10, h, points)?;
         root.present().map_err(|e| err(e.to_string()))?;
     }
     let img =
         image::RgbImage::from_raw(w, h, buf).ok_or_else(|| Error::msg("top-down buffer size"))?;
     crate::imageio::write_png_atomic(path, &image::DynamicImage::ImageRgb8(img))
+}
+
+/// The legend right of the map: the classes present, most points first (or a note that
+/// the colours are the points' own).
+fn draw_legend(
+    root: &plotters::drawing::DrawingArea<
+        plotters::prelude::BitMapBackend<'_>,
+        plotters::coord::Shift,
+    >,
+    x0: i32,
+    h: u32,
+    points: &[MapPoint],
+) -> Result<()> {
+    use plotters::prelude::*;
+    let err = |e: String| Error::msg(format!("drawing the top-down map failed: {e}"));
+    let font = ("sans-serif", 16).into_font();
+    let labelled = points.iter().any(|p| p.label != classes::VOID);
+    let mut hist = label_histogram(points);
+    hist[classes::NUM_CLASSES] = 0;
+    let mut present: Vec<(usize, usize)> = hist
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n > 0)
+        .map(|(l, n)| (l, *n))
+        .collect();
+    present.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut y = 50;
+    let heading = if labelled {
+        "classes (points)"
+    } else {
+        "RGB colours (no labels)"
+    };
+    root.draw_text(heading, &font.color(&BLACK), (x0, y))
+        .map_err(|e| err(e.to_string()))?;
+    y += 26;
+    for (l, n) in present {
+        if y > h as i32 - 24 {
+            break;
+        }
+        let c = classes::colorize(l as u8);
+        root.draw(&Rectangle::new(
+            [(x0, y), (x0 + 18, y + 16)],
+            RGBColor(c[0], c[1], c[2]).filled(),
+        ))
+        .map_err(|e| err(e.to_string()))?;
+        root.draw_text(
+            &format!("{} ({n})", classes::display_name(l as u8)),
+            &font.color(&BLACK),
+            (x0 + 26, y),
+        )
+        .map_err(|e| err(e.to_string()))?;
+        y += 22;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

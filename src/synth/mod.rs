@@ -212,6 +212,16 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
         let scene = Scene::generate(&cfg.room, seed)?;
         let renderer = Renderer::new(&scene, &camera, &cfg.render);
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a11_ec70_9e5e_ed00);
+        let job = SceneJob {
+            cfg,
+            scene: &scene,
+            renderer: &renderer,
+            camera: &camera,
+            index: s,
+            seed,
+            out,
+            progress,
+        };
         let mut info = json!({
             "index": s,
             "seed": seed,
@@ -228,111 +238,12 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
             "classes_in_scene": scene.labels().iter().filter_map(|&l| crate::classes::name(l)).collect::<Vec<_>>(),
         });
         if cfg.output.sequence {
-            let folder = format!("seq_{s:03}");
-            let dir = out.join(&folder);
-            let (names, stamps) = frame_stamps(cfg);
-            let times: Vec<f64> = (0..cfg.frames).map(|k| k as f64 / cfg.fps).collect();
-            let offsets = blur_offsets(cfg);
-            let check: Vec<f64> = times
-                .iter()
-                .flat_map(|&t| offsets.iter().map(move |o| t + o))
-                .collect();
-            let duration =
-                times.last().copied().unwrap_or(0.0) + offsets.last().copied().unwrap_or(0.0);
-            let motion = Motion::plan(
-                cfg.trajectory,
-                &scene,
-                &camera,
-                &cfg.motion,
-                duration,
-                &check,
-                &mut rng,
-            )
-            .map_err(|e| Error::msg(format!("scene {s}: {e}")))?;
-            let mut poses = Vec::with_capacity(cfg.frames);
-            let mut hist = Histogram::default();
-            let noise_base = (seed as u32) ^ 0x5e05;
-            let mut ae = None;
-            for chunk in (0..cfg.frames).collect::<Vec<_>>().chunks(8) {
-                let rendered: Vec<(usize, FrameFiles)> = chunk
-                    .iter()
-                    .map(|&k| {
-                        let noise = noise_base.wrapping_add((k as u32).wrapping_mul(7919));
-                        let (files, pose, gain) =
-                            render_frame(&renderer, &motion, cfg, times[k], noise, ae);
-                        ae = Some(gain);
-                        poses.push(pose);
-                        (k, files)
-                    })
-                    .collect();
-                for (_, f) in &rendered {
-                    hist.add_image(&f.labels);
-                }
-                rendered
-                    .par_iter()
-                    .map(|(k, f)| f.write(&dir, &names[*k]))
-                    .collect::<Result<Vec<()>>>()?;
-                progress(chunk.len() as u64);
-            }
-            writer::write_lists(&dir, &names, cfg.output.gt_depth)?;
-            let traj = Trajectory::from_parts(stamps, poses)?;
-            traj.write_tum(dir.join("groundtruth.txt"))?;
-            camera.save(dir.join("camera.toml"))?;
-            info["folder"] = json!(folder);
-            info["trajectory"] = json!(cfg.trajectory);
-            info["frames"] = json!(cfg.frames);
-            info["path_length_m"] = json!(traj.path_length());
-            info["label_histogram"] = hist.to_json();
-            info["classes_in_view"] = json!(hist.classes_present());
-            let one = writer::scene_json(cfg, &camera, vec![info.clone()], &hist, Value::Null)?;
-            crate::io::write_atomic(dir.join("scene.json"), &one)?;
+            let hist = write_sequence(&job, &mut rng, &mut info)?;
             totals.add(&hist);
             frames_written += cfg.frames;
         }
         if views > 0 {
-            let dir = out.join("nyu");
-            let mut hist = Histogram::default();
-            let poses: Vec<Pose> = (0..views)
-                .map(|_| trajectory::random_view(&scene, &camera, &cfg.motion, &mut rng))
-                .collect::<Result<_>>()
-                .map_err(|e| Error::msg(format!("scene {s}: {e}")))?;
-            for chunk in (0..views).collect::<Vec<_>>().chunks(8) {
-                let rendered: Vec<(usize, FrameFiles)> = chunk
-                    .iter()
-                    .map(|&v| {
-                        let r = renderer.render(&poses[v]);
-                        let rgb: Vec<[f32; 3]> = r.px.iter().map(|p| p.rgb).collect();
-                        let nseed = (seed as u32) ^ 0x0e1a_0000 ^ (v as u32).wrapping_mul(7919);
-                        let gain = sensor::auto_exposure(&rgb)
-                            * sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
-                        // Training views: exact depth, no sensor simulation.
-                        let f = FrameFiles {
-                            rgb: sensor::color_image(
-                                &rgb,
-                                r.width,
-                                r.height,
-                                gain,
-                                &cfg.render,
-                                &cfg.sensor,
-                                nseed,
-                            ),
-                            depth: sensor::exact_depth(&r),
-                            depth_gt: None,
-                            labels: sensor::label_image(&r),
-                            color_labels: false,
-                        };
-                        (v, f)
-                    })
-                    .collect();
-                for (_, f) in &rendered {
-                    hist.add_image(&f.labels);
-                }
-                rendered
-                    .par_iter()
-                    .map(|(v, f)| f.write(&dir, &format!("{:06}", s * views + v + 1)))
-                    .collect::<Result<Vec<()>>>()?;
-                progress(chunk.len() as u64);
-            }
+            let hist = write_nyu_views(&job, views, &mut rng)?;
             for v in 0..views {
                 let name = format!("{:06}", s * views + v + 1);
                 let test_item = if cfg.scenes > 1 {
@@ -377,4 +288,148 @@ pub fn generate(cfg: &SynthConfig, out: &Path, progress: &(dyn Fn(u64) + Sync)) 
         nyu_test: test.len(),
         histogram: totals,
     })
+}
+
+/// One room of a run, as the writers of its outputs see it.
+struct SceneJob<'a> {
+    cfg: &'a SynthConfig,
+    scene: &'a Scene,
+    renderer: &'a Renderer<'a>,
+    camera: &'a Camera,
+    /// The room's index in the run.
+    index: usize,
+    seed: u64,
+    out: &'a Path,
+    progress: &'a (dyn Fn(u64) + Sync),
+}
+
+/// The room's TUM-layout sequence `seq_NNN/` (frames, lists, ground truth, camera,
+/// `scene.json`); its facts go into `info`. Returns the label histogram of its frames.
+fn write_sequence(job: &SceneJob, rng: &mut ChaCha8Rng, info: &mut Value) -> Result<Histogram> {
+    let SceneJob {
+        cfg,
+        scene,
+        renderer,
+        camera,
+        index: s,
+        seed,
+        out,
+        progress,
+    } = *job;
+    let folder = format!("seq_{s:03}");
+    let dir = out.join(&folder);
+    let (names, stamps) = frame_stamps(cfg);
+    let times: Vec<f64> = (0..cfg.frames).map(|k| k as f64 / cfg.fps).collect();
+    let offsets = blur_offsets(cfg);
+    let check: Vec<f64> = times
+        .iter()
+        .flat_map(|&t| offsets.iter().map(move |o| t + o))
+        .collect();
+    let duration = times.last().copied().unwrap_or(0.0) + offsets.last().copied().unwrap_or(0.0);
+    let motion = Motion::plan(
+        cfg.trajectory,
+        scene,
+        camera,
+        &cfg.motion,
+        duration,
+        &check,
+        rng,
+    )
+    .map_err(|e| Error::msg(format!("scene {s}: {e}")))?;
+    let mut poses = Vec::with_capacity(cfg.frames);
+    let mut hist = Histogram::default();
+    let noise_base = (seed as u32) ^ 0x5e05;
+    let mut ae = None;
+    for chunk in (0..cfg.frames).collect::<Vec<_>>().chunks(8) {
+        let rendered: Vec<(usize, FrameFiles)> = chunk
+            .iter()
+            .map(|&k| {
+                let noise = noise_base.wrapping_add((k as u32).wrapping_mul(7919));
+                let (files, pose, gain) = render_frame(renderer, &motion, cfg, times[k], noise, ae);
+                ae = Some(gain);
+                poses.push(pose);
+                (k, files)
+            })
+            .collect();
+        for (_, f) in &rendered {
+            hist.add_image(&f.labels);
+        }
+        rendered
+            .par_iter()
+            .map(|(k, f)| f.write(&dir, &names[*k]))
+            .collect::<Result<Vec<()>>>()?;
+        progress(chunk.len() as u64);
+    }
+    writer::write_lists(&dir, &names, cfg.output.gt_depth)?;
+    let traj = Trajectory::from_parts(stamps, poses)?;
+    traj.write_tum(dir.join("groundtruth.txt"))?;
+    camera.save(dir.join("camera.toml"))?;
+    info["folder"] = json!(folder);
+    info["trajectory"] = json!(cfg.trajectory);
+    info["frames"] = json!(cfg.frames);
+    info["path_length_m"] = json!(traj.path_length());
+    info["label_histogram"] = hist.to_json();
+    info["classes_in_view"] = json!(hist.classes_present());
+    let one = writer::scene_json(cfg, camera, vec![info.clone()], &hist, Value::Null)?;
+    crate::io::write_atomic(dir.join("scene.json"), &one)?;
+    Ok(hist)
+}
+
+/// The room's NYU-layout training views in `nyu/` (exact depth, no sensor simulation).
+/// Returns their label histogram.
+fn write_nyu_views(job: &SceneJob, views: usize, rng: &mut ChaCha8Rng) -> Result<Histogram> {
+    let SceneJob {
+        cfg,
+        scene,
+        renderer,
+        camera,
+        index: s,
+        seed,
+        out,
+        progress,
+    } = *job;
+    let dir = out.join("nyu");
+    let mut hist = Histogram::default();
+    let poses: Vec<Pose> = (0..views)
+        .map(|_| trajectory::random_view(scene, camera, &cfg.motion, rng))
+        .collect::<Result<_>>()
+        .map_err(|e| Error::msg(format!("scene {s}: {e}")))?;
+    for chunk in (0..views).collect::<Vec<_>>().chunks(8) {
+        let rendered: Vec<(usize, FrameFiles)> = chunk
+            .iter()
+            .map(|&v| {
+                let r = renderer.render(&poses[v]);
+                let rgb: Vec<[f32; 3]> = r.px.iter().map(|p| p.rgb).collect();
+                let nseed = (seed as u32) ^ 0x0e1a_0000 ^ (v as u32).wrapping_mul(7919);
+                let gain = sensor::auto_exposure(&rgb)
+                    * sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
+                // Training views: exact depth, no sensor simulation.
+                let f = FrameFiles {
+                    rgb: sensor::color_image(
+                        &rgb,
+                        r.width,
+                        r.height,
+                        gain,
+                        &cfg.render,
+                        &cfg.sensor,
+                        nseed,
+                    ),
+                    depth: sensor::exact_depth(&r),
+                    depth_gt: None,
+                    labels: sensor::label_image(&r),
+                    color_labels: false,
+                };
+                (v, f)
+            })
+            .collect();
+        for (_, f) in &rendered {
+            hist.add_image(&f.labels);
+        }
+        rendered
+            .par_iter()
+            .map(|(v, f)| f.write(&dir, &format!("{:06}", s * views + v + 1)))
+            .collect::<Result<Vec<()>>>()?;
+        progress(chunk.len() as u64);
+    }
+    Ok(hist)
 }

@@ -186,7 +186,7 @@ impl Camera {
 
     /// Writes the camera as TOML (atomically).
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
-        let text = toml::to_string_pretty(self).map_err(|e| Error::msg(e.to_string()))?;
+        let text = toml::to_string_pretty(self)?;
         crate::io::write_atomic(path, text.as_bytes())
     }
 

@@ -23,6 +23,12 @@ pub enum Error {
     /// A file is readable but its content is unusable (wrong image format, size...).
     #[error("{}: {msg}", path.display())]
     Invalid { path: PathBuf, msg: String },
+    /// A value could not be written as JSON (its message is serde_json's).
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// A value could not be written as TOML (its message is the toml crate's).
+    #[error(transparent)]
+    TomlWrite(#[from] toml::ser::Error),
     /// Anything else: inconsistent arguments, degenerate data.
     #[error("{0}")]
     Msg(String),

@@ -115,7 +115,7 @@ pub fn write_outputs(
     outputs.push(json_path.clone());
     outputs.push(md_path.clone());
     report.outputs = outputs;
-    let mut json = serde_json::to_vec_pretty(&report).map_err(|e| Error::msg(e.to_string()))?;
+    let mut json = serde_json::to_vec_pretty(&report)?;
     json.push(b'\n');
     crate::io::write_atomic(&json_path, &json)?;
     crate::io::write_atomic(&md_path, report.markdown().as_bytes())?;

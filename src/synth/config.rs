@@ -333,7 +333,7 @@ impl SynthConfig {
 
     /// The configuration as TOML.
     pub fn to_toml(&self) -> Result<String> {
-        toml::to_string_pretty(self).map_err(|e| Error::msg(e.to_string()))
+        Ok(toml::to_string_pretty(self)?)
     }
 
     /// The camera, resized to the configured resolution.

@@ -180,8 +180,8 @@ pub fn scene_json(
         "generator": "sdf-slam synth",
         "version": env!("CARGO_PKG_VERSION"),
         "seed": cfg.seed,
-        "config": serde_json::to_value(cfg).map_err(|e| Error::msg(e.to_string()))?,
-        "camera": serde_json::to_value(camera).map_err(|e| Error::msg(e.to_string()))?,
+        "config": serde_json::to_value(cfg)?,
+        "camera": serde_json::to_value(camera)?,
         "label_coding": "NYU40, 0-based (0 = wall ... 39 = otherprop), 255 = void",
         "depth_scale": DEPTH_SCALE,
         "scenes": scenes,
@@ -190,7 +190,7 @@ pub fn scene_json(
         "label_histogram_counts": "pixels per class over all sequence frames",
         "nyu": nyu,
     });
-    let mut bytes = serde_json::to_vec_pretty(&v).map_err(|e| Error::msg(e.to_string()))?;
+    let mut bytes = serde_json::to_vec_pretty(&v)?;
     bytes.push(b'\n');
     Ok(bytes)
 }

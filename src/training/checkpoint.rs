@@ -149,7 +149,7 @@ impl RunDir {
         }
         std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
         write_weights(&tmp)?;
-        let json = serde_json::to_string_pretty(state).map_err(|e| Error::msg(e.to_string()))?;
+        let json = serde_json::to_string_pretty(state)?;
         crate::io::write_atomic(tmp.join("state.json"), json.as_bytes())?;
         crate::io::write_atomic(tmp.join("config.toml"), config_toml.as_bytes())?;
         if dir.exists() {
@@ -160,8 +160,7 @@ impl RunDir {
         let last = serde_json::to_string(&Last {
             checkpoint: name,
             epoch: state.epoch,
-        })
-        .map_err(|e| Error::msg(e.to_string()))?;
+        })?;
         crate::io::write_atomic(self.checkpoints().join("last.json"), last.as_bytes())?;
         self.prune(state.epoch)?;
         Ok(Checkpoint {

@@ -12,7 +12,8 @@
 //!   the other varied fields;
 //! - `loss_curves.png`: training and validation loss per epoch of every run.
 
-use super::{At, Run, Sweep, sanitize, value_label};
+use super::values::sanitize;
+use super::{At, Run, Sweep, value_label};
 use crate::error::{Error, Result};
 use crate::plot::{Chart, Series, line_charts};
 use crate::training::RunDir;
@@ -395,7 +396,7 @@ pub fn results_md(sweep: &Sweep, results: &[RunResult<'_>]) -> (String, Option<S
             .map(|e| e.epoch)
             .max();
         let secs: Vec<f64> = runs.iter().map(|r| r.seconds()).collect();
-        let time = mean_std(&secs).map_or("–".into(), |m| super::fmt_duration(m.0));
+        let time = mean_std(&secs).map_or("–".into(), |m| super::run::fmt_duration(m.0));
         let _ = writeln!(s, " {} | {time} |", epochs.unwrap_or(0));
     }
     // The best single run.

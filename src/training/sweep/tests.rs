@@ -1,6 +1,9 @@
 use super::report::{self, Status};
+use super::run::utc_now;
+use super::values::sanitize;
 use super::*;
-use crate::training::{EpochRecord, History, TrainState};
+use crate::training::{EpochRecord, History, RunDir, TrainState};
+use toml::Table;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("sdf_sweep_{name}_{}", std::process::id()));
@@ -171,10 +174,19 @@ fn expect_error(dir: &Path, sweep: &str, line: Option<usize>, parts: &[&str]) {
 fn bad_sweeps_are_rejected_before_any_run() {
     let dir = tmp("bad");
     let head = "model = \"sweep\"\nbase = \"base.toml\"\nout = \"OUT\"\nseeds = [1]\nselect = { metric = \"val_miou\" }\n";
+    bad_overrides(&dir, head);
+    bad_lists_and_seeds(&dir, head);
+    bad_sweep_fields(&dir, head);
+    bad_bases(&dir, head);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Overrides the trainer refuses.
+fn bad_overrides(dir: &Path, head: &str) {
     let with = |rest: &str| format!("{head}{rest}");
     // A field the trainer does not have (lines: the key's line in the sweep file).
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambada\" = [0.2]\n"),
         Some(7),
         &[
@@ -184,96 +196,106 @@ fn bad_sweeps_are_rejected_before_any_run() {
         ],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"optimiser.lr\" = [0.2]\n"),
         Some(7),
         &["unknown field `optimiser`"],
     );
     // A wrong type, and a value the trainer refuses.
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.2, \"high\"]\n"),
         Some(7),
         &["loss.lambda = \"high\"", "invalid type: string \"high\""],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.depth\" = [\"l3\"]\n"),
         Some(7),
         &["loss.depth = \"l3\"", "unknown variant `l3`"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.2, 2.0]\n"),
         Some(7),
         &["loss.lambda = 2.0", "must be in [0, 1]"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[set]\n\"batch_size\" = \"big\"\n[grid]\n\"loss.lambda\" = [0.2]\n"),
         Some(7),
         &["[set] batch_size", "invalid type"],
     );
     // A path through a value that is not a table.
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda.x\" = [1]\n"),
         Some(7),
         &["`loss.lambda` is a float in the base config, not a table"],
     );
+}
+
+/// Nothing to sweep, bad value lists, bad seeds.
+fn bad_lists_and_seeds(dir: &Path, head: &str) {
+    let with = |rest: &str| format!("{head}{rest}");
     // Empty grid, empty list, a value that is not a list, no seeds.
-    expect_error(&dir, &with("[grid]\n"), None, &["nothing to sweep"]);
+    expect_error(dir, &with("[grid]\n"), None, &["nothing to sweep"]);
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = []\n"),
         Some(7),
         &["[grid] loss.lambda = []", "empty"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = 0.4\n"),
         Some(7),
         &["takes a list of values"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.2, 0.2]\n"),
         Some(7),
         &["0.2 is listed twice"],
     );
     expect_error(
-        &dir,
+        dir,
         &head.replace("seeds = [1]", "seeds = []").to_string(),
         Some(4),
         &["seeds = [] is empty"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.2]\n").replace("seeds = [1]\n", ""),
         None,
         &["missing field `seeds`"],
     );
+}
+
+/// Bad fields of the sweep itself.
+fn bad_sweep_fields(dir: &Path, head: &str) {
+    let with = |rest: &str| format!("{head}{rest}");
     // The sweep's own fields: unknown ones, reserved fields, metrics the trainer lacks.
     expect_error(
-        &dir,
+        dir,
         &with("grids = 1\n[grid]\n\"loss.lambda\" = [0.2]\n"),
         Some(6),
         &["unknown field `grids`"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\nseed = [1, 2]\n"),
         Some(7),
         &["seeds are given by the sweep's `seeds"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[set]\n\"loss.lambda\" = 0.3\n[grid]\n\"loss.lambda\" = [0.2]\n"),
         Some(9),
         &["also in [set]"],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.2]\n").replace("val_miou", "val_top1"),
         Some(5),
         &[
@@ -282,14 +304,19 @@ fn bad_sweeps_are_rejected_before_any_run() {
         ],
     );
     expect_error(
-        &dir,
+        dir,
         &with("[grid]\n\"loss.lambda\" = [0.4]\n[[points]]\n\"loss.lambda\" = 0.4\n"),
         Some(8),
         &["same configuration as point"],
     );
+}
+
+/// Base configs a sweep cannot run.
+fn bad_bases(dir: &Path, head: &str) {
+    let with = |rest: &str| format!("{head}{rest}");
     // A base that is not a training config.
     let e = load(
-        &dir,
+        dir,
         "model = \"slam\"\n",
         &with("[grid]\n\"loss.lambda\" = [0.2]\n"),
     )
@@ -301,7 +328,7 @@ fn bad_sweeps_are_rejected_before_any_run() {
     );
     // A base naming data that does not exist.
     let e = load(
-        &dir,
+        dir,
         &BASE.replace(
             "datasets/fixtures/nyuv2\" }]\nval",
             "datasets/missing\" }]\nval",
@@ -317,7 +344,7 @@ fn bad_sweeps_are_rejected_before_any_run() {
     // Selecting by a validation metric when the base has no validation data.
     let no_val = BASE.replace("val = [{ path = \"datasets/fixtures/nyuv2\" }]\n", "");
     assert_ne!(no_val, BASE);
-    let e = load(&dir, &no_val, &with("[grid]\n\"loss.lambda\" = [0.2]\n"))
+    let e = load(dir, &no_val, &with("[grid]\n\"loss.lambda\" = [0.2]\n"))
         .err()
         .expect("no validation data");
     let e = e.to_string();
@@ -327,12 +354,11 @@ fn bad_sweeps_are_rejected_before_any_run() {
     );
     // A train_* metric is fine then.
     load(
-        &dir,
+        dir,
         &no_val,
         &with("[grid]\n\"loss.lambda\" = [0.2]\n").replace("val_miou", "train_loss"),
     )
     .expect("train metric without validation data");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]

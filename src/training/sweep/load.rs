@@ -118,7 +118,7 @@ impl Checker<'_> {
 
     /// Parses `table` as a config of the trainer; `what` names the override in errors.
     fn check(&self, table: &Table, key: &str, what: &str) -> Result<Value> {
-        let merged = toml::to_string(table).map_err(|e| Error::msg(e.to_string()))?;
+        let merged = toml::to_string(table)?;
         (self.trainer.parse)(&merged, self.base).map_err(|e| {
             let msg = match e {
                 Error::Parse { msg, .. } | Error::Invalid { msg, .. } => msg,
@@ -583,7 +583,7 @@ fn check_data(configs: &[PointConfig], checker: &Checker<'_>, path: &Path) -> Re
         if checked.contains(&data) {
             continue;
         }
-        let text = toml::to_string(t).map_err(|e| Error::msg(e.to_string()))?;
+        let text = toml::to_string(t)?;
         (checker.trainer.check_data)(&text, checker.base).map_err(|e| {
             Error::msg(format!(
                 "{}: the training data of base {} cannot be opened (its comments may say how to make them): {e}",
@@ -609,7 +609,7 @@ fn plan_runs(sweep: &Sweep, configs: &[PointConfig], opts: &RunOptions) -> Resul
             let mut t = t.clone();
             t.insert("seed".into(), Value::Integer(seed as i64));
             t.insert("out".into(), Value::String(dir.display().to_string()));
-            let body = toml::to_string(&t).map_err(|e| Error::msg(e.to_string()))?;
+            let body = toml::to_string(&t)?;
             let values: Vec<String> = keys
                 .iter()
                 .zip(&point.values)

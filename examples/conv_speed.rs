@@ -24,9 +24,9 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::prelude::*;
 use burn::tensor::Distribution;
 use sdf_slam::fpfdcnn::{Fpfdcnn, FpfdcnnConfig};
+use sdf_slam::nn::BackendKind;
 use sdf_slam::nn::{OpImpl, set_op_impl};
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig};
-use sdf_slam::training::BackendKind;
 
 /// Process CPU time (user + system, all threads) in milliseconds, from `/proc/self/stat`
 /// (Linux; clock ticks of 10 ms). `None` elsewhere.

@@ -25,9 +25,9 @@ use sdf_slam::features::orb::{OrbConfig, gray_from_f32};
 use sdf_slam::fpfdcnn::evaluate::{fpfdcnn_matches, orb_matches};
 use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
 use sdf_slam::metrics::matching::CORRECT_MATCH_PX;
+use sdf_slam::nn::BackendKind;
 use sdf_slam::range_matcher::{GuideConfig, RangeMatcherConfig};
 use sdf_slam::raster::GrayF32;
-use sdf_slam::training::BackendKind;
 use std::path::PathBuf;
 
 #[derive(Parser)]

@@ -13,7 +13,7 @@ mod common;
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::training::BackendKind;
+use sdf_slam::nn::BackendKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -5,10 +5,10 @@ mod common;
 
 use burn::module::Module;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::nn::BackendKind;
 use sdf_slam::slam::defaults::{
     BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, default_sequence_config, generate_sequence,
 };
-use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -9,6 +9,7 @@ use burn::module::{ModuleMapper, Param};
 use burn::prelude::*;
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
+use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
 use sdf_slam::slam::defaults::{default_sequence_config, generate_sequence};
 use sdf_slam::slam::map::points_from_depth;
@@ -18,7 +19,6 @@ use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
     DepthMode, OrbSource, SdfcnnSource, SemanticInput, SemanticSource, Slam, SlamConfig, SlamOutput,
 };
-use sdf_slam::training::BackendKind;
 use sdf_slam::trajectory::Trajectory;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};

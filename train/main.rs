@@ -16,10 +16,11 @@ use anyhow::{Context, Result};
 use burn::prelude::*;
 use clap::{Parser, Subcommand, ValueEnum};
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::nn::BackendKind;
 use sdf_slam::nn::{ShapeTrace, trainable_params};
 use sdf_slam::sdfcnn::SdfcnnConfig;
 use sdf_slam::training::sweep::{self, Sweep};
-use sdf_slam::training::{BackendKind, RunOptions, config_model};
+use sdf_slam::training::{RunOptions, config_model};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]

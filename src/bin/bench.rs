@@ -30,8 +30,8 @@ use clap::{Parser, ValueEnum};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
-use sdf_slam::training::BackendKind;
 use std::time::Instant;
 
 #[derive(Parser, Debug)]

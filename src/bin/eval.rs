@@ -13,8 +13,8 @@
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use sdf_slam::metrics::{self, Alignment, DeltaUnit, PoseError, Stats};
+use sdf_slam::nn::BackendKind;
 use sdf_slam::plot;
-use sdf_slam::training::BackendKind;
 use sdf_slam::trajectory::Trajectory;
 use serde_json::json;
 use std::path::PathBuf;

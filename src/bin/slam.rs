@@ -18,6 +18,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
+use sdf_slam::nn::BackendKind;
 use sdf_slam::slam::defaults::{
     BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, bundled_weights, default_sequence,
     default_sequence_config, generate_sequence,
@@ -29,7 +30,6 @@ use sdf_slam::slam::{
     Control, DepthMode, FpfdcnnSource, GroundTruthSource, KeypointSource, NoLabels, OrbSource,
     SdfcnnSource, SemanticSource, Slam, SlamConfig,
 };
-use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -9,8 +9,8 @@
 use super::model::Fpfdcnn;
 use super::training::FpfdcnnTrainConfig;
 use crate::error::{Error, Result};
+use crate::nn::BackendKind;
 use crate::nn::weights::{load_into, resolve_checkpoint};
-use crate::training::BackendKind;
 use burn::prelude::*;
 use image::GrayImage;
 use serde::{Deserialize, Serialize};

@@ -3,6 +3,7 @@
 //! trainable-parameter counting, seeded initialisation and a layer-shape trace.
 
 pub mod activation;
+pub mod backend;
 pub mod conv;
 pub mod init;
 pub mod params;
@@ -20,3 +21,5 @@ pub use pool::max_pool2d;
 pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};
 pub use shuffle::{pixel_shuffle, pixel_unshuffle};
 pub use trace::ShapeTrace;
+
+pub use backend::BackendKind;

@@ -21,9 +21,10 @@ use super::{Sdfcnn, SdfcnnConfig, SdfcnnOutput};
 use crate::dataset::labels::VOID;
 use crate::dataset::{DepthImage, LabelImage};
 use crate::error::{Error, Result};
+use crate::nn::BackendKind;
 use crate::nn::trainable_params;
 use crate::plot::{Panel, panels_figure};
-use crate::training::{BackendKind, RunDir};
+use crate::training::RunDir;
 
 /// Colour image of a label map ([`crate::classes::colorize`]).
 pub fn colorize_labels(labels: &LabelImage) -> RgbImage {

@@ -15,8 +15,8 @@
 use crate::dataset::{DepthImage, LabelImage};
 use crate::error::{Error, Result};
 use crate::io::{parse_f64, read_text, records};
+use crate::nn::BackendKind;
 use crate::sdfcnn::SdfcnnPredictor;
-use crate::training::BackendKind;
 use image::RgbImage;
 use std::path::{Path, PathBuf};
 

@@ -2,12 +2,12 @@
 //! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
 //! data order, and the NaN guard; and config-file sweeps over them ([`sweep`]).
 
-pub mod backend;
 pub mod checkpoint;
 pub mod history;
 pub mod sweep;
 
-pub use backend::BackendKind;
+/// Backends live with the networks ([`crate::nn::backend`]); re-exported for the trainers.
+pub use crate::nn::backend::{self, BackendKind};
 pub use checkpoint::{Checkpoint, RunDir, TrainState};
 pub use history::{EpochRecord, History};
 

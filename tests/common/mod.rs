@@ -2,8 +2,8 @@
 //! `mod common;`).
 #![allow(dead_code)]
 
+use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig, SdfcnnPredictor};
-use sdf_slam::training::BackendKind;
 use std::path::{Path, PathBuf};
 
 /// A path under the system's temporary folder unique to this test process,

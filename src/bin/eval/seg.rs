@@ -9,10 +9,10 @@ use anyhow::{Context, Result};
 use clap::Args;
 use sdf_slam::classes::NYU40;
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics};
+use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::SdfcnnPredictor;
 use sdf_slam::sdfcnn::data::{DataSource, Set};
 use sdf_slam::sdfcnn::inference::{colorize_depth, colorize_labels, save_figure};
-use sdf_slam::training::BackendKind;
 use serde_json::json;
 use std::path::PathBuf;
 

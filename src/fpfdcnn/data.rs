@@ -15,12 +15,11 @@
 //! homography, with exact matches (SuperPoint's recipe) on real texture.
 
 use super::homography::{Homography, HomographyConfig};
-use crate::camera::Camera;
-use crate::dataset::fp_pairs::{FpConfig, FpMatch, fp_pairs};
+use super::sequence::{add_sequence, open_source};
+use crate::dataset::fp_pairs::{FpConfig, FpMatch};
 use crate::dataset::photometric::PhotometricAugment;
-use crate::dataset::tum::TumSequence;
 use crate::error::{Error, Result};
-use crate::features::harris::{HarrisConfig, harris_corners};
+use crate::features::harris::HarrisConfig;
 use crate::raster::GrayF32;
 use burn::prelude::*;
 use rand::seq::SliceRandom;
@@ -208,11 +207,6 @@ pub fn resize_gray(img: &GrayF32, width: usize, height: usize) -> GrayF32 {
     out
 }
 
-/// Maps a pixel position to an image resized by `scale` (pixel centres aligned).
-fn scale_point(p: [f32; 2], sx: f32, sy: f32) -> [f32; 2] {
-    [(p[0] + 0.5) * sx - 0.5, (p[1] + 0.5) * sy - 0.5]
-}
-
 impl FpDataset {
     /// Builds the training and validation splits from the configured sequences.
     pub fn build(
@@ -242,133 +236,9 @@ impl FpDataset {
         };
         let mut val = train.clone();
         for src in &cfg.sequences {
-            if src.repeat == 0 {
-                return Err(Error::invalid(&src.path, "repeat must be at least 1"));
-            }
-            if src.homographies > 100 || (src.homographies > 0 && !crop) {
-                return Err(Error::invalid(
-                    &src.path,
-                    "homographies must be at most 100 and needs sampling = \"crop\"",
-                ));
-            }
-            let seq = TumSequence::open(&src.path)?;
-            let camera = Camera::load(&src.camera)?;
-            if !seq.has_depth() || seq.groundtruth.is_none() {
-                return Err(Error::invalid(
-                    &src.path,
-                    "FPFDCNN training needs depth and groundtruth.txt",
-                ));
-            }
-            if crop && ((camera.width as usize) < width || (camera.height as usize) < height) {
-                return Err(Error::invalid(
-                    &src.path,
-                    format!(
-                        "frames of {}x{} are smaller than the {width}x{height} training crops \
-                         (use sampling = \"resize\" or a smaller height/width)",
-                        camera.width, camera.height
-                    ),
-                ));
-            }
+            let (seq, camera) = open_source(src, crop, [height, width])?;
             progress(&format!("{}: {} frames", seq.name(), seq.len()));
-            let n = seq.len();
-            let cut = ((n as f64) * (1.0 - cfg.val_fraction)).round() as usize;
-            // Frames at the training resolution, with their Harris targets.
-            let offset_train = train.frames.len();
-            let offset_val = val.frames.len();
-            let (first_train_pair, first_val_pair) = (train.pairs.len(), val.pairs.len());
-            let loaded: Vec<Result<FrameEntry>> = (0..n)
-                .into_par_iter()
-                .map(|i| {
-                    let gray = GrayF32::from_gray(&seq.load_gray(i)?);
-                    if (gray.width, gray.height) != (camera.width as usize, camera.height as usize)
-                    {
-                        return Err(Error::invalid(
-                            &seq.frames[i].rgb_path,
-                            format!(
-                                "image is {}x{} but the sequence's camera is {}x{}",
-                                gray.width, gray.height, camera.width, camera.height
-                            ),
-                        ));
-                    }
-                    let gray = if crop {
-                        gray
-                    } else {
-                        resize_gray(&gray, width, height)
-                    };
-                    let targets = harris_corners(&gray, &cfg.targets)
-                        .iter()
-                        .map(|k| (k.x as usize, k.y as usize))
-                        .collect();
-                    Ok(FrameEntry { gray, targets })
-                })
-                .collect();
-            for (i, f) in loaded.into_iter().enumerate() {
-                let f = f?;
-                if i < cut {
-                    train.frames.push(f)
-                } else {
-                    val.frames.push(f)
-                }
-            }
-            // Frame pixels to stored-frame pixels.
-            let (fw, fh) = if crop {
-                (camera.width as usize, camera.height as usize)
-            } else {
-                (width, height)
-            };
-            let (sx, sy) = (
-                fw as f32 / camera.width as f32,
-                fh as f32 / camera.height as f32,
-            );
-            for pair in fp_pairs(&seq, &camera, &cfg.pairs) {
-                let pair = pair?;
-                let (a, b) = (pair.frame_a, pair.frame_b);
-                let matches: Vec<FpMatch> = pair
-                    .matches
-                    .iter()
-                    .map(|m| FpMatch {
-                        a: scale_point(m.a, sx, sy),
-                        b: scale_point(m.b, sx, sy),
-                    })
-                    .filter(|m| inside(m.a, fw, fh) && inside(m.b, fw, fh))
-                    .collect();
-                if matches.len() < 8 {
-                    continue;
-                }
-                if b < cut {
-                    train.pairs.push(PairEntry {
-                        a: offset_train + a,
-                        b: offset_train + b,
-                        matches,
-                        homography: false,
-                    });
-                } else if a >= cut {
-                    val.pairs.push(PairEntry {
-                        a: offset_val + a - cut,
-                        b: offset_val + b - cut,
-                        matches,
-                        homography: false,
-                    });
-                }
-            }
-            for f in offset_train..train.frames.len() {
-                for _ in 0..src.homographies {
-                    train.pairs.push(PairEntry {
-                        a: f,
-                        b: f,
-                        matches: Vec::new(),
-                        homography: true,
-                    });
-                }
-            }
-            let (train_block, val_block) = (
-                first_train_pair..train.pairs.len(),
-                first_val_pair..val.pairs.len(),
-            );
-            for _ in 1..src.repeat {
-                train.pairs.extend_from_within(train_block.clone());
-                val.pairs.extend_from_within(val_block.clone());
-            }
+            add_sequence(&mut train, &mut val, src, &seq, &camera, cfg)?;
         }
         if train.pairs.is_empty() {
             return Err(Error::msg(
@@ -555,7 +425,7 @@ fn crop(img: &GrayF32, x0: usize, y0: usize, w: usize, h: usize) -> GrayF32 {
     out
 }
 
-fn inside(p: [f32; 2], w: usize, h: usize) -> bool {
+pub(super) fn inside(p: [f32; 2], w: usize, h: usize) -> bool {
     p[0] >= 0.0 && p[1] >= 0.0 && p[0] <= (w - 1) as f32 && p[1] <= (h - 1) as f32
 }
 

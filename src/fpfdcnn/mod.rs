@@ -6,6 +6,7 @@ pub mod homography;
 pub mod inference;
 pub mod loss;
 mod model;
+mod sequence;
 pub mod training;
 
 pub use inference::{DetectorConfig, Features, FpfdcnnDetector};

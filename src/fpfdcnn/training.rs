@@ -18,7 +18,7 @@ use crate::training::{
 };
 use burn::module::Module;
 use burn::optim::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamConfig, GradientsParams};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
@@ -281,115 +281,24 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
 
     let device = cfg.backend.autodiff_device();
     device.seed(cfg.seed);
-    let mut model = cfg
-        .network()
-        .init(&device)
-        .map_err(|e| Error::msg(e.to_string()))?;
-    let mut adam = AdamConfig::new();
-    if cfg.grad_clip_norm > 0.0 {
-        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(
-            cfg.grad_clip_norm as f32,
-        )));
-    }
-    let mut optim = adam.init();
+    let (mut model, mut optim) = new_model(&cfg, &device, opts.resume, &log)?;
     let mut state = TrainState::default();
-    if let (Some(init), false) = (&cfg.init, opts.resume) {
-        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
-        model = crate::nn::weights::load_into(model, &weights, "FPFDCNN", &config)?;
-        log(&format!("  initialised from {}", weights.display()));
-    }
     if opts.resume {
-        let ckpt = run
-            .latest()?
-            .ok_or_else(|| Error::invalid(&run.root, "no checkpoint to resume"))?;
-        model = model.try_load_file(ckpt.model_path()).map_err(|e| {
-            Error::invalid(
-                ckpt.model_path(),
-                format!("does not fit the FPFDCNN of {}: {e}", config_path.display()),
-            )
-        })?;
-        optim = optim
-            .load(ckpt.optimizer_path())
-            .map_err(|e| Error::invalid(ckpt.optimizer_path(), e.to_string()))?;
-        state = ckpt.state;
-        // A kill between the checkpoint and its metrics line lost nothing: the state has it.
-        state.history.write_csv(run.root.join("metrics.csv"))?;
-        log(&format!(
-            "  resumed after epoch {} ({})",
-            state.epoch,
-            ckpt.dir.display()
-        ));
+        (model, optim, state) = resume(model, optim, &run, config_path, &log)?;
     }
 
+    let trainer = Trainer {
+        cfg: &cfg,
+        run: &run,
+        train: &train,
+        device: &device,
+        quiet: opts.quiet,
+    };
     for epoch in state.epoch..cfg.epochs {
         let started = Instant::now();
         let lr = cfg.lr_at(epoch);
-        let mut order = epoch_order(train.pairs.len(), cfg.seed, epoch);
-        if cfg.pairs_per_epoch > 0 {
-            order.truncate(cfg.pairs_per_epoch);
-        }
-        let batches: Vec<&[usize]> = order.chunks(cfg.batch_size).collect();
-        let bar = if opts.quiet {
-            ProgressBar::hidden()
-        } else {
-            ProgressBar::new(batches.len() as u64)
-        };
-        bar.set_style(
-            ProgressStyle::with_template(
-                "epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})",
-            )
-            .map_err(|e| Error::msg(e.to_string()))?
-            .progress_chars("=> "),
-        );
-        bar.set_prefix(format!("{}/{}", epoch + 1, cfg.epochs));
-        let mut sums = LossSums::default();
-        let mut skipped = 0usize;
-        for (bi, ids) in batches.iter().enumerate() {
-            let mut rng = batch_rng(cfg.seed, epoch, bi);
-            let batch = train.batch(
-                ids,
-                Some(&cfg.data.augment),
-                cfg.loss.max_matches,
-                &mut rng,
-                &device,
-            )?;
-            let l = batch_loss(&model, batch, &cfg)?;
-            let value = l.total.clone().into_scalar::<f32>() as f64;
-            check_finite(value, epoch, bi, &run)?;
-            let grads = GradientsParams::from_grads(l.total.backward(), &model);
-            let bad = non_finite_grads(&model, &grads);
-            if !bad.is_empty() {
-                // A rare batch can give infinite gradients (a saturated sigmoid, a
-                // degenerate descriptor); skipping it keeps the weights finite.
-                skipped += 1;
-                bar.suspend(|| {
-                    eprintln!(
-                        "epoch {} batch {bi}: non-finite gradients in {} parameter tensors (shapes {:?}), step skipped",
-                        epoch + 1,
-                        bad.len(),
-                        &bad[..bad.len().min(3)]
-                    )
-                });
-                if skipped >= 10 {
-                    check_finite(f64::NAN, epoch, bi, &run)?;
-                }
-                bar.inc(1);
-                continue;
-            }
-            skipped = 0;
-            model = optim.step(lr, model, grads);
-            state.step += 1;
-            sums.add(value, &l);
-            bar.inc(1);
-            bar.set_message(format!(
-                "loss {:.4} (det {:.4} loc {:.4} desc {:.4})",
-                sums.mean(sums.total),
-                sums.mean(sums.detector),
-                sums.mean(sums.localization),
-                sums.mean(sums.descriptor)
-            ));
-        }
-        bar.finish_and_clear();
+        let sums;
+        (model, sums) = trainer.epoch(model, &mut optim, epoch, lr, &mut state)?;
         let mut values = BTreeMap::new();
         sums.insert("train", &mut values);
         if !val.pairs.is_empty() {
@@ -412,21 +321,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
                 .save(dir.join("optimizer.bpk"))
                 .map_err(|e| Error::invalid(dir.join("optimizer.bpk"), e.to_string()))
         })?;
-        state.history.write_csv(run.root.join("metrics.csv"))?;
-        state.history.plot(
-            run.root.join("loss.png"),
-            "FPFDCNN loss",
-            "loss",
-            &["loss", "detector", "localization", "descriptor"],
-            true,
-        )?;
-        state.history.plot(
-            run.root.join("accuracy.png"),
-            "descriptor top-1 match (within pair)",
-            "share",
-            &["top1"],
-            false,
-        )?;
+        write_history(&run, &state)?;
         let summary: Vec<String> = values.iter().map(|(k, v)| format!("{k} {v:.4}")).collect();
         log(&format!(
             "epoch {}/{} ({:.0} s, lr {lr}): {} -> {}",
@@ -438,6 +333,182 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         ));
     }
     Ok(())
+}
+
+/// The network of `cfg` on `device` (from `cfg.init`'s weights unless resuming) and a fresh
+/// Adam optimizer, clipping gradients by norm when `grad_clip_norm` is set.
+fn new_model(
+    cfg: &FpfdcnnTrainConfig,
+    device: &Device,
+    resuming: bool,
+    log: &dyn Fn(&str),
+) -> Result<(Fpfdcnn, ModuleOptimizer)> {
+    let mut model = cfg
+        .network()
+        .init(device)
+        .map_err(|e| Error::msg(e.to_string()))?;
+    let mut adam = AdamConfig::new();
+    if cfg.grad_clip_norm > 0.0 {
+        adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(
+            cfg.grad_clip_norm as f32,
+        )));
+    }
+    let optim = adam.init();
+    if let (Some(init), false) = (&cfg.init, resuming) {
+        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
+        model = crate::nn::weights::load_into(model, &weights, "FPFDCNN", &config)?;
+        log(&format!("  initialised from {}", weights.display()));
+    }
+    Ok((model, optim))
+}
+
+/// `--resume`: the model, optimizer state and training state of the run's last checkpoint;
+/// `metrics.csv` is rewritten from that state.
+fn resume(
+    model: Fpfdcnn,
+    optim: ModuleOptimizer,
+    run: &RunDir,
+    config_path: &Path,
+    log: &dyn Fn(&str),
+) -> Result<(Fpfdcnn, ModuleOptimizer, TrainState)> {
+    let ckpt = run
+        .latest()?
+        .ok_or_else(|| Error::invalid(&run.root, "no checkpoint to resume"))?;
+    let model = model.try_load_file(ckpt.model_path()).map_err(|e| {
+        Error::invalid(
+            ckpt.model_path(),
+            format!("does not fit the FPFDCNN of {}: {e}", config_path.display()),
+        )
+    })?;
+    let optim = optim
+        .load(ckpt.optimizer_path())
+        .map_err(|e| Error::invalid(ckpt.optimizer_path(), e.to_string()))?;
+    let state = ckpt.state;
+    // A kill between the checkpoint and its metrics line lost nothing: the state has it.
+    state.history.write_csv(run.root.join("metrics.csv"))?;
+    log(&format!(
+        "  resumed after epoch {} ({})",
+        state.epoch,
+        ckpt.dir.display()
+    ));
+    Ok((model, optim, state))
+}
+
+/// What every training epoch of a run reads.
+struct Trainer<'a> {
+    cfg: &'a FpfdcnnTrainConfig,
+    run: &'a RunDir,
+    train: &'a FpDataset,
+    device: &'a Device,
+    quiet: bool,
+}
+
+impl Trainer<'_> {
+    /// One epoch over the training pairs in the seeded order (at most `pairs_per_epoch`):
+    /// the updated model and the epoch's loss sums. A batch with non-finite gradients is
+    /// skipped; ten in a row stop the run, as a non-finite loss does.
+    fn epoch(
+        &self,
+        mut model: Fpfdcnn,
+        optim: &mut ModuleOptimizer,
+        epoch: usize,
+        lr: f64,
+        state: &mut TrainState,
+    ) -> Result<(Fpfdcnn, LossSums)> {
+        let (cfg, run) = (self.cfg, self.run);
+        let mut order = epoch_order(self.train.pairs.len(), cfg.seed, epoch);
+        if cfg.pairs_per_epoch > 0 {
+            order.truncate(cfg.pairs_per_epoch);
+        }
+        let batches: Vec<&[usize]> = order.chunks(cfg.batch_size).collect();
+        let bar = epoch_bar(batches.len(), epoch, cfg.epochs, self.quiet)?;
+        let mut sums = LossSums::default();
+        let mut skipped = 0usize;
+        for (bi, ids) in batches.iter().enumerate() {
+            let mut rng = batch_rng(cfg.seed, epoch, bi);
+            let batch = self.train.batch(
+                ids,
+                Some(&cfg.data.augment),
+                cfg.loss.max_matches,
+                &mut rng,
+                self.device,
+            )?;
+            let l = batch_loss(&model, batch, cfg)?;
+            let value = l.total.clone().into_scalar::<f32>() as f64;
+            check_finite(value, epoch, bi, run)?;
+            let grads = GradientsParams::from_grads(l.total.backward(), &model);
+            let bad = non_finite_grads(&model, &grads);
+            if !bad.is_empty() {
+                // A rare batch can give infinite gradients (a saturated sigmoid, a
+                // degenerate descriptor); skipping it keeps the weights finite.
+                skipped += 1;
+                bar.suspend(|| {
+                    eprintln!(
+                        "epoch {} batch {bi}: non-finite gradients in {} parameter tensors (shapes {:?}), step skipped",
+                        epoch + 1,
+                        bad.len(),
+                        &bad[..bad.len().min(3)]
+                    )
+                });
+                if skipped >= 10 {
+                    check_finite(f64::NAN, epoch, bi, run)?;
+                }
+                bar.inc(1);
+                continue;
+            }
+            skipped = 0;
+            model = optim.step(lr, model, grads);
+            state.step += 1;
+            sums.add(value, &l);
+            bar.inc(1);
+            bar.set_message(format!(
+                "loss {:.4} (det {:.4} loc {:.4} desc {:.4})",
+                sums.mean(sums.total),
+                sums.mean(sums.detector),
+                sums.mean(sums.localization),
+                sums.mean(sums.descriptor)
+            ));
+        }
+        bar.finish_and_clear();
+        Ok((model, sums))
+    }
+}
+
+/// The progress bar of an epoch of `len` batches (hidden when `quiet`).
+fn epoch_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> Result<ProgressBar> {
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(len as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})",
+        )
+        .map_err(|e| Error::msg(e.to_string()))?
+        .progress_chars("=> "),
+    );
+    bar.set_prefix(format!("{}/{epochs}", epoch + 1));
+    Ok(bar)
+}
+
+/// `metrics.csv`, `loss.png` and `accuracy.png` of the run so far.
+fn write_history(run: &RunDir, state: &TrainState) -> Result<()> {
+    state.history.write_csv(run.root.join("metrics.csv"))?;
+    state.history.plot(
+        run.root.join("loss.png"),
+        "FPFDCNN loss",
+        "loss",
+        &["loss", "detector", "localization", "descriptor"],
+        true,
+    )?;
+    state.history.plot(
+        run.root.join("accuracy.png"),
+        "descriptor top-1 match (within pair)",
+        "share",
+        &["top1"],
+        false,
+    )
 }
 
 /// Validation loss terms and descriptor top-1 accuracy, without augmentation.

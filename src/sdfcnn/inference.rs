@@ -16,7 +16,8 @@ use plotters::style::colors::colormaps::ViridisRGB;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use super::training::{NetworkConfig, predictions};
+use super::config::NetworkConfig;
+use super::validation::predictions;
 use super::{Sdfcnn, SdfcnnConfig, SdfcnnOutput};
 use crate::dataset::labels::VOID;
 use crate::dataset::{DepthImage, LabelImage};

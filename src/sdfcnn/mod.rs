@@ -2,13 +2,16 @@
 //! Table 13): the model, its loss (eq. 21), training data, the trainer and inference.
 
 mod blocks;
+mod config;
 pub mod data;
 pub mod focal;
 pub mod imagenet;
 pub mod inference;
 pub mod loss;
 mod model;
+mod source;
 pub mod training;
+mod validation;
 
 pub use blocks::BnProbe;
 pub use inference::{Prediction, SdfcnnPredictor};

@@ -29,380 +29,28 @@
 //! images; seg/depth metrics compare the outputs upsampled to that size with the targets
 //! resized there by nearest neighbour. `eval seg` evaluates at the original resolution.
 
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::momentum::MomentumConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer, SgdConfig};
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
+pub use super::config::{
+    DataConfig, NetworkConfig, OptimizerConfig, OptimizerKind, SdfcnnTrainConfig,
+};
 use super::data::{DataSource, SdfcnnBatch, SegDepthData, resolve};
 use super::inference::load_weights;
-use super::loss::{LossResolution, SdfcnnLossConfig};
-use super::{Sdfcnn, SdfcnnConfig, SdfcnnOutput};
-use crate::camera::toml_error;
+use super::loss::LossResolution;
+use super::validation::{LossMeter, validate};
+use super::{Sdfcnn, SdfcnnOutput};
 use crate::dataset::augment::AugmentConfig;
 use crate::error::{Error, Result};
-use crate::metrics::{ConfusionMatrix, DepthAccumulator};
-use crate::nn::{resize_bilinear, seeded_init};
+use crate::nn::seeded_init;
 use crate::training::{
-    BackendKind, EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite,
-    check_finite_epoch, epoch_order,
+    EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, check_finite_epoch,
+    epoch_order,
 };
-
-/// A complete SDFCNN training config (TOML).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SdfcnnTrainConfig {
-    /// Must be `"sdfcnn"`.
-    pub model: String,
-    /// Run folder.
-    pub out: PathBuf,
-    /// Backend (`ndarray` or `flex`); `--backend` overrides it.
-    #[serde(default)]
-    pub backend: BackendKind,
-    /// Seed of the initial weights, data order and augmentation.
-    #[serde(default = "default_seed")]
-    pub seed: u64,
-    /// Number of epochs; `--epochs` overrides it.
-    pub epochs: usize,
-    /// Images per step (the paper: 20).
-    pub batch_size: usize,
-    /// How many epoch checkpoints to keep (0 = all).
-    #[serde(default = "default_keep")]
-    pub keep_checkpoints: usize,
-    /// Start from these weights instead of a random initialisation (ignored by `--resume`):
-    /// a checkpoint of ours (`model.bpk`, its folder or a run folder; the whole network), or a
-    /// `.safetensors` file of torchvision-named ImageNet MobileNetV2 weights (the encoder;
-    /// see [`super::imagenet`]). The optimizer starts afresh.
-    #[serde(default)]
-    pub init: Option<PathBuf>,
-    /// Training and validation data.
-    pub data: DataConfig,
-    /// Optimizer and learning-rate schedule.
-    #[serde(default)]
-    pub optimizer: OptimizerConfig,
-    /// Eq. 21.
-    #[serde(default)]
-    pub loss: SdfcnnLossConfig,
-    /// The network ([`SdfcnnConfig`] fields).
-    #[serde(default)]
-    pub network: NetworkConfig,
-}
-
-fn default_seed() -> u64 {
-    42
-}
-
-fn default_keep() -> usize {
-    3
-}
-
-/// `[data]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DataConfig {
-    /// Training sources (all samples are used together, each source `repeat` times): NYU
-    /// layouts (labels and depth) and TUM RGB-D sequences (depth only).
-    pub train: Vec<DataSource>,
-    /// Validation sources (none: no validation); named ones get their own metrics.
-    #[serde(default)]
-    pub val: Vec<DataSource>,
-    /// Training image size `[height, width]` the samples are cropped and resized to.
-    #[serde(default = "default_size")]
-    pub size: [usize; 2],
-    /// Validation image size (default: `size`).
-    #[serde(default)]
-    pub val_size: Option<[usize; 2]>,
-    /// Validate on at most this many samples of each source (its first ones).
-    #[serde(default)]
-    pub val_limit: Option<usize>,
-    /// Augmentation of the training samples.
-    #[serde(default)]
-    pub augment: AugmentConfig,
-}
-
-fn default_size() -> [usize; 2] {
-    [300, 400]
-}
-
-/// Optimizer family.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OptimizerKind {
-    /// SGD with momentum (the paper's recipe).
-    #[default]
-    Sgd,
-    /// Adam.
-    Adam,
-}
-
-/// `[optimizer]`: SGD with momentum 0.9 (PyTorch semantics: dampening 0), learning rate 0.1
-/// for the first 20 epochs, then 0.01 (Section V-C), by default.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct OptimizerConfig {
-    /// `sgd` or `adam`.
-    pub kind: OptimizerKind,
-    /// Initial learning rate.
-    pub lr: f64,
-    /// `[epoch, lr]` pairs: from that many completed epochs on, use `lr`.
-    pub lr_steps: Vec<(usize, f64)>,
-    /// SGD momentum (0 = plain SGD).
-    pub momentum: f64,
-    /// SGD momentum dampening.
-    pub dampening: f64,
-    /// Nesterov momentum.
-    pub nesterov: bool,
-    /// L2 weight decay added to the gradient (0 = none; the paper gives no value).
-    pub weight_decay: f64,
-    /// Adam β1.
-    pub beta1: f64,
-    /// Adam β2.
-    pub beta2: f64,
-    /// Adam ε.
-    pub epsilon: f64,
-    /// Clip the gradient norm of each parameter to this value.
-    pub grad_clip_norm: Option<f64>,
-}
-
-impl Default for OptimizerConfig {
-    fn default() -> Self {
-        OptimizerConfig {
-            kind: OptimizerKind::Sgd,
-            lr: 0.1,
-            lr_steps: vec![(20, 0.01)],
-            momentum: 0.9,
-            dampening: 0.0,
-            nesterov: false,
-            weight_decay: 1e-4,
-            beta1: 0.9,
-            beta2: 0.999,
-            epsilon: 1e-8,
-            grad_clip_norm: None,
-        }
-    }
-}
-
-impl OptimizerConfig {
-    /// Learning rate of epoch `epoch` (0-based).
-    pub fn lr_at(&self, epoch: usize) -> f64 {
-        self.lr_steps
-            .iter()
-            .filter(|(e, _)| *e <= epoch)
-            .max_by_key(|(e, _)| *e)
-            .map_or(self.lr, |(_, lr)| *lr)
-    }
-
-    /// The Burn optimizer.
-    pub fn init(&self) -> ModuleOptimizer {
-        let decay =
-            (self.weight_decay > 0.0).then(|| WeightDecayConfig::new(self.weight_decay as f32));
-        let clip = self
-            .grad_clip_norm
-            .map(|n| burn::grad_clipping::GradientClippingConfig::Norm(n as f32));
-        match self.kind {
-            OptimizerKind::Sgd => {
-                let momentum = (self.momentum > 0.0).then(|| {
-                    MomentumConfig::new()
-                        .with_momentum(self.momentum)
-                        .with_dampening(self.dampening)
-                        .with_nesterov(self.nesterov)
-                });
-                SgdConfig::new()
-                    .with_momentum(momentum)
-                    .with_weight_decay(decay)
-                    .with_gradient_clipping(clip)
-                    .init()
-            }
-            OptimizerKind::Adam => AdamConfig::new()
-                .with_beta_1(self.beta1 as f32)
-                .with_beta_2(self.beta2 as f32)
-                .with_epsilon(self.epsilon as f32)
-                .with_weight_decay(decay)
-                .with_grad_clipping(clip)
-                .init(),
-        }
-    }
-
-    fn validate(&self) -> std::result::Result<(), String> {
-        let lrs = std::iter::once(self.lr).chain(self.lr_steps.iter().map(|s| s.1));
-        if lrs.clone().any(|lr| !(lr > 0.0 && lr.is_finite())) {
-            return Err("optimizer learning rates must be positive".into());
-        }
-        if !(0.0..1.0).contains(&self.momentum) || !(0.0..=1.0).contains(&self.dampening) {
-            return Err("optimizer.momentum must be in [0, 1), dampening in [0, 1]".into());
-        }
-        if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite())
-            || self
-                .grad_clip_norm
-                .is_some_and(|c| !(c > 0.0 && c.is_finite()))
-        {
-            return Err("optimizer.weight_decay must be >= 0, grad_clip_norm > 0".into());
-        }
-        Ok(())
-    }
-}
-
-/// `[network]`: the [`SdfcnnConfig`] fields (Table 13 defaults).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct NetworkConfig {
-    /// Semantic classes.
-    pub num_classes: usize,
-    /// Layer0 output size `[height, width]`.
-    pub inner_size: [usize; 2],
-    /// Eq. 15 mean.
-    pub mean: [f32; 3],
-    /// Eq. 15 standard deviation.
-    pub std: [f32; 3],
-    /// Decoder width.
-    pub decoder_dim: usize,
-    /// Stages of each chained residual pooling.
-    pub crp_stages: usize,
-    /// The canonical camera's focal length in image widths: depth targets are scaled to it in
-    /// training and predictions scaled back for the camera at inference
-    /// ([`super::focal`]). `None`: depth in metres as is, whatever the camera.
-    pub depth_focal: Option<f64>,
-}
-
-impl Default for NetworkConfig {
-    fn default() -> Self {
-        let c = SdfcnnConfig::new();
-        NetworkConfig {
-            num_classes: c.num_classes,
-            inner_size: c.inner_size,
-            mean: c.mean,
-            std: c.std,
-            decoder_dim: c.decoder_dim,
-            crp_stages: c.crp_stages,
-            depth_focal: None,
-        }
-    }
-}
-
-impl NetworkConfig {
-    /// The model configuration.
-    pub fn to_config(&self) -> SdfcnnConfig {
-        SdfcnnConfig::new()
-            .with_num_classes(self.num_classes)
-            .with_inner_size(self.inner_size)
-            .with_mean(self.mean)
-            .with_std(self.std)
-            .with_decoder_dim(self.decoder_dim)
-            .with_crp_stages(self.crp_stages)
-    }
-}
-
-impl SdfcnnTrainConfig {
-    /// Parses and checks a config; errors name `path` (and the line).
-    pub fn parse(text: &str, path: &Path) -> Result<Self> {
-        let cfg: SdfcnnTrainConfig = toml::from_str(text).map_err(|e| toml_error(path, text, e))?;
-        cfg.validate().map_err(|m| Error::invalid(path, m))?;
-        Ok(cfg)
-    }
-
-    fn validate(&self) -> std::result::Result<(), String> {
-        if self.model != "sdfcnn" {
-            return Err(format!(
-                "model = \"{}\" is not an SDFCNN config (model = \"sdfcnn\")",
-                self.model
-            ));
-        }
-        if self.batch_size == 0 {
-            return Err("batch_size must be at least 1".into());
-        }
-        if !(1..=100_000).contains(&self.epochs) {
-            return Err(format!(
-                "epochs must be in 1..=100000, got {} (0 would train nothing)",
-                self.epochs
-            ));
-        }
-        if self.data.size.iter().any(|&v| v < 16) || self.network.inner_size.iter().any(|&v| v < 32)
-        {
-            return Err(format!(
-                "data.size {:?} must be at least 16 pixels a side and network.inner_size {:?} at \
-                 least 32 (the encoder's stride)",
-                self.data.size, self.network.inner_size
-            ));
-        }
-        self.data
-            .augment
-            .validate()
-            .map_err(|m| format!("data.{m}"))?;
-        if self.data.train.is_empty() {
-            return Err("[data] train lists no dataset folder".into());
-        }
-        let sizes = [Some(self.data.size), self.data.val_size];
-        if sizes.iter().flatten().any(|s| s.contains(&0)) {
-            return Err("data sizes must be non-zero".into());
-        }
-        if self.network.num_classes == 0 || self.network.num_classes > 255 {
-            return Err("network.num_classes must be in 1..=255 (255 is void)".into());
-        }
-        if let Some(f) = self.network.depth_focal
-            && !(f > 0.05 && f < 20.0)
-        {
-            return Err(format!(
-                "network.depth_focal {f} must be a focal length in image widths (0.05..20; NYUv2: 0.8107)"
-            ));
-        }
-        const MAX_SIDE: usize = 8192;
-        let sizes_ok = [
-            Some(self.data.size),
-            self.data.val_size,
-            Some(self.network.inner_size),
-        ]
-        .iter()
-        .flatten()
-        .all(|s| s.iter().all(|&v| v <= MAX_SIDE));
-        if !sizes_ok || self.batch_size > 4096 {
-            return Err(format!(
-                "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 4096"
-            ));
-        }
-        self.optimizer.validate()?;
-        self.loss.validate()?;
-        self.network
-            .to_config()
-            .init(&Device::flex())
-            .map(|_| ())
-            .map_err(|e| e.to_string())
-    }
-}
-
-/// Loss sums over an epoch, weighted by batch size.
-#[derive(Default)]
-struct LossMeter {
-    total: f64,
-    seg: f64,
-    depth: f64,
-    samples: usize,
-}
-
-impl LossMeter {
-    fn add(&mut self, [total, seg, depth]: [f64; 3], n: usize) {
-        self.total += total * n as f64;
-        self.seg += seg * n as f64;
-        self.depth += depth * n as f64;
-        self.samples += n;
-    }
-
-    fn mean(&self) -> [f64; 3] {
-        let n = self.samples.max(1) as f64;
-        [self.total / n, self.seg / n, self.depth / n]
-    }
-
-    fn record(&self, prefix: &str, values: &mut BTreeMap<String, f64>) {
-        let [t, s, d] = self.mean();
-        values.insert(format!("{prefix}_loss"), t);
-        values.insert(format!("{prefix}_seg_loss"), s);
-        values.insert(format!("{prefix}_depth_loss"), d);
-    }
-}
 
 /// Trains SDFCNN as `config_text` (read from `config_path`) says, with the command-line
 /// overrides `opts`.
@@ -577,7 +225,11 @@ fn initialise(
 }
 
 /// Network outputs at the loss resolution.
-fn forward(model: &Sdfcnn, images: Tensor<4>, res: LossResolution) -> Result<SdfcnnOutput> {
+pub(super) fn forward(
+    model: &Sdfcnn,
+    images: Tensor<4>,
+    res: LossResolution,
+) -> Result<SdfcnnOutput> {
     let out = match res {
         LossResolution::Quarter => model.forward_quarter(images),
         LossResolution::Full => model.forward(images),
@@ -585,120 +237,17 @@ fn forward(model: &Sdfcnn, images: Tensor<4>, res: LossResolution) -> Result<Sdf
     out.map_err(|e| Error::msg(e.to_string()))
 }
 
-fn scalar(t: &Tensor<1>) -> f64 {
+pub(super) fn scalar(t: &Tensor<1>) -> f64 {
     t.clone().into_scalar::<f32>() as f64
 }
 
-/// Validation loss and the eqs 16-20 metrics of `model` on `data` at `size`, overall and for
-/// each named source (`val_<name>_delta1`, ...). Depth metrics are in metres: predictions and
-/// targets are taken back from the canonical camera ([`super::focal`]).
-fn validate(
-    model: &Sdfcnn,
-    data: &SegDepthData,
-    size: [usize; 2],
-    cfg: &SdfcnnTrainConfig,
-    values: &mut BTreeMap<String, f64>,
-) -> Result<()> {
-    let device = model_device(model);
-    let indices = data.first_of_each(cfg.data.val_limit);
-    let mut meter = LossMeter::default();
-    let classes = cfg.network.num_classes;
-    let mut confusion = ConfusionMatrix::new(classes);
-    let mut depth_acc = DepthAccumulator::default();
-    let mut per_source: Vec<(ConfusionMatrix, DepthAccumulator)> = (0..data.num_sources())
-        .map(|_| (ConfusionMatrix::new(classes), DepthAccumulator::default()))
-        .collect();
-    let none = AugmentConfig::none();
-    for chunk in indices.chunks(cfg.batch_size) {
-        let samples = data.load_batch(chunk, size, &none, &mut batch_rng(0, 0, 0))?;
-        let batch = SdfcnnBatch::from_samples(&samples, &device)?;
-        let quarter = forward(model, batch.images, LossResolution::Quarter)?;
-        let full = SdfcnnOutput {
-            seg: resize_bilinear(quarter.seg.clone(), size),
-            depth: resize_bilinear(quarter.depth.clone(), size),
-        };
-        let at_loss = match cfg.loss.resolution {
-            LossResolution::Quarter => quarter,
-            LossResolution::Full => full.clone(),
-        };
-        let loss = cfg.loss.forward(at_loss, batch.labels, batch.depth);
-        meter.add(
-            [&loss.total, &loss.seg, &loss.depth].map(scalar),
-            chunk.len(),
-        );
-        let (labels, depth) = predictions(full)?;
-        let mut offset = 0;
-        for (s, &i) in samples.iter().zip(chunk) {
-            let n = s.width * s.height;
-            let pred_labels = &labels[offset..offset + n];
-            let metres = |d: &[f32]| -> Vec<f32> { d.iter().map(|v| v / s.depth_factor).collect() };
-            let (gt_depth, pred_depth) = (metres(&s.depth), metres(&depth[offset..offset + n]));
-            confusion.add(&s.labels, pred_labels);
-            depth_acc.add(&gt_depth, &pred_depth);
-            if let Some(k) = data.source_of(i) {
-                per_source[k].0.add(&s.labels, pred_labels);
-                per_source[k].1.add(&gt_depth, &pred_depth);
-            }
-            offset += n;
-        }
-    }
-    meter.record("val", values);
-    record_metrics("val", &confusion, &depth_acc, values);
-    for (k, (c, d)) in per_source.iter().enumerate() {
-        if let Some(name) = data.source_name(k) {
-            record_metrics(&format!("val_{name}"), c, d, values);
-        }
-    }
-    Ok(())
-}
-
-/// `{prefix}_mpa`, `_miou`, `_pixel_acc` (when any pixel is labelled) and `{prefix}_rms`,
-/// `_rel`, `_delta1..3` (when any has depth).
-fn record_metrics(
-    prefix: &str,
-    confusion: &ConfusionMatrix,
-    depth: &DepthAccumulator,
-    values: &mut BTreeMap<String, f64>,
-) {
-    if confusion.per_class().iter().any(|c| c.gt_pixels > 0) {
-        values.insert(format!("{prefix}_mpa"), confusion.mpa());
-        values.insert(format!("{prefix}_miou"), confusion.miou());
-        values.insert(format!("{prefix}_pixel_acc"), confusion.pixel_accuracy());
-    }
-    if let Some(m) = depth.finish() {
-        values.insert(format!("{prefix}_rms"), m.rms);
-        values.insert(format!("{prefix}_rel"), m.rel);
-        values.insert(format!("{prefix}_delta1"), m.delta1);
-        values.insert(format!("{prefix}_delta2"), m.delta2);
-        values.insert(format!("{prefix}_delta3"), m.delta3);
-    }
-}
-
 /// The device a model's parameters live on.
-fn model_device(model: &Sdfcnn) -> Device {
+pub(super) fn model_device(model: &Sdfcnn) -> Device {
     model
         .devices()
         .into_iter()
         .next()
         .unwrap_or_else(Device::flex)
-}
-
-/// Argmax labels (`u8`) and depth (metres) of full-resolution outputs, row-major per image.
-pub(crate) fn predictions(out: SdfcnnOutput) -> Result<(Vec<u8>, Vec<f32>)> {
-    let labels = out.seg.argmax(1).into_data().convert::<i64>();
-    let labels = labels
-        .as_slice::<i64>()
-        .map_err(|e| Error::msg(format!("reading labels: {e:?}")))?
-        .iter()
-        .map(|&l| l.clamp(0, 254) as u8)
-        .collect();
-    let depth = out
-        .depth
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .map_err(|e| Error::msg(format!("reading depth: {e:?}")))?;
-    Ok((labels, depth))
 }
 
 fn progress_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> ProgressBar {
@@ -774,9 +323,11 @@ fn write_history(run: &RunDir, state: &TrainState) -> Result<()> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+    use crate::sdfcnn::SdfcnnConfig;
     use crate::training::RunDir;
+    use std::path::PathBuf;
 
     fn tmp(name: &str) -> PathBuf {
         let d = std::env::temp_dir().join(format!("sdf_sdfcnn_{name}_{}", std::process::id()));
@@ -786,7 +337,7 @@ mod tests {
     }
 
     /// A tiny network and data size: 2 fixture images at 32×48, batch 2.
-    fn tiny_config(out: &Path, extra_optimizer: &str) -> String {
+    pub(crate) fn tiny_config(out: &Path, extra_optimizer: &str) -> String {
         format!(
             r#"model = "sdfcnn"
 out = "{}"
@@ -838,48 +389,6 @@ crp_stages = 2
             quiet: true,
             ..Default::default()
         }
-    }
-
-    #[test]
-    fn lr_schedule_and_optimizer_defaults_follow_the_paper() {
-        let o = OptimizerConfig::default();
-        assert_eq!(
-            (o.lr_at(0), o.lr_at(19), o.lr_at(20), o.lr_at(500)),
-            (0.1, 0.1, 0.01, 0.01)
-        );
-        assert_eq!((o.momentum, o.dampening), (0.9, 0.0));
-        let l = SdfcnnLossConfig::default();
-        assert_eq!(l.lambda, 0.4);
-    }
-
-    #[test]
-    fn shipped_configs_parse() {
-        for p in [
-            "configs/sdfcnn.toml",
-            "configs/sdfcnn_tiny.toml",
-            "configs/sdfcnn_real.toml",
-        ] {
-            let text = std::fs::read_to_string(p).expect("shipped config");
-            let c = SdfcnnTrainConfig::parse(&text, Path::new(p)).expect("valid");
-            assert_eq!(c.model, "sdfcnn");
-        }
-    }
-
-    #[test]
-    fn config_errors_name_file_and_line() {
-        let text =
-            tiny_config(Path::new("x"), "").replace("lr = 0.01", "lr = 0.01\nmomentun = 0.5");
-        let e = SdfcnnTrainConfig::parse(&text, Path::new("bad.toml")).expect_err("typo");
-        let msg = e.to_string();
-        assert!(
-            msg.starts_with("bad.toml:13:") && msg.contains("momentun"),
-            "{msg}"
-        );
-        let text = tiny_config(Path::new("x"), "")
-            .replace("lambda", "x")
-            .replace("[loss]\n", "[loss]\nlambda = 2.0\n");
-        let e = SdfcnnTrainConfig::parse(&text, Path::new("bad.toml")).expect_err("range");
-        assert!(e.to_string().contains("lambda"), "{e}");
     }
 
     #[test]

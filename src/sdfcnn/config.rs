@@ -1,0 +1,387 @@
+//! The SDFCNN training config (TOML): the run, `[data]`, `[optimizer]` (the Burn optimizer
+//! and the learning-rate schedule), `[network]`, and the checks [`SdfcnnTrainConfig::parse`]
+//! makes. [`super::training`] runs it.
+
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::momentum::MomentumConfig;
+use burn::optim::{AdamConfig, ModuleOptimizer, SgdConfig};
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+use super::SdfcnnConfig;
+use super::data::DataSource;
+use super::loss::SdfcnnLossConfig;
+use crate::camera::toml_error;
+use crate::dataset::augment::AugmentConfig;
+use crate::error::{Error, Result};
+use crate::training::BackendKind;
+
+/// A complete SDFCNN training config (TOML).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SdfcnnTrainConfig {
+    /// Must be `"sdfcnn"`.
+    pub model: String,
+    /// Run folder.
+    pub out: PathBuf,
+    /// Backend (`ndarray` or `flex`); `--backend` overrides it.
+    #[serde(default)]
+    pub backend: BackendKind,
+    /// Seed of the initial weights, data order and augmentation.
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    /// Number of epochs; `--epochs` overrides it.
+    pub epochs: usize,
+    /// Images per step (the paper: 20).
+    pub batch_size: usize,
+    /// How many epoch checkpoints to keep (0 = all).
+    #[serde(default = "default_keep")]
+    pub keep_checkpoints: usize,
+    /// Start from these weights instead of a random initialisation (ignored by `--resume`):
+    /// a checkpoint of ours (`model.bpk`, its folder or a run folder; the whole network), or a
+    /// `.safetensors` file of torchvision-named ImageNet MobileNetV2 weights (the encoder;
+    /// see [`super::imagenet`]). The optimizer starts afresh.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
+    /// Training and validation data.
+    pub data: DataConfig,
+    /// Optimizer and learning-rate schedule.
+    #[serde(default)]
+    pub optimizer: OptimizerConfig,
+    /// Eq. 21.
+    #[serde(default)]
+    pub loss: SdfcnnLossConfig,
+    /// The network ([`SdfcnnConfig`] fields).
+    #[serde(default)]
+    pub network: NetworkConfig,
+}
+
+fn default_seed() -> u64 {
+    42
+}
+
+fn default_keep() -> usize {
+    3
+}
+
+/// `[data]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// Training sources (all samples are used together, each source `repeat` times): NYU
+    /// layouts (labels and depth) and TUM RGB-D sequences (depth only).
+    pub train: Vec<DataSource>,
+    /// Validation sources (none: no validation); named ones get their own metrics.
+    #[serde(default)]
+    pub val: Vec<DataSource>,
+    /// Training image size `[height, width]` the samples are cropped and resized to.
+    #[serde(default = "default_size")]
+    pub size: [usize; 2],
+    /// Validation image size (default: `size`).
+    #[serde(default)]
+    pub val_size: Option<[usize; 2]>,
+    /// Validate on at most this many samples of each source (its first ones).
+    #[serde(default)]
+    pub val_limit: Option<usize>,
+    /// Augmentation of the training samples.
+    #[serde(default)]
+    pub augment: AugmentConfig,
+}
+
+fn default_size() -> [usize; 2] {
+    [300, 400]
+}
+
+/// Optimizer family.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OptimizerKind {
+    /// SGD with momentum (the paper's recipe).
+    #[default]
+    Sgd,
+    /// Adam.
+    Adam,
+}
+
+/// `[optimizer]`: SGD with momentum 0.9 (PyTorch semantics: dampening 0), learning rate 0.1
+/// for the first 20 epochs, then 0.01 (Section V-C), by default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OptimizerConfig {
+    /// `sgd` or `adam`.
+    pub kind: OptimizerKind,
+    /// Initial learning rate.
+    pub lr: f64,
+    /// `[epoch, lr]` pairs: from that many completed epochs on, use `lr`.
+    pub lr_steps: Vec<(usize, f64)>,
+    /// SGD momentum (0 = plain SGD).
+    pub momentum: f64,
+    /// SGD momentum dampening.
+    pub dampening: f64,
+    /// Nesterov momentum.
+    pub nesterov: bool,
+    /// L2 weight decay added to the gradient (0 = none; the paper gives no value).
+    pub weight_decay: f64,
+    /// Adam β1.
+    pub beta1: f64,
+    /// Adam β2.
+    pub beta2: f64,
+    /// Adam ε.
+    pub epsilon: f64,
+    /// Clip the gradient norm of each parameter to this value.
+    pub grad_clip_norm: Option<f64>,
+}
+
+impl Default for OptimizerConfig {
+    fn default() -> Self {
+        OptimizerConfig {
+            kind: OptimizerKind::Sgd,
+            lr: 0.1,
+            lr_steps: vec![(20, 0.01)],
+            momentum: 0.9,
+            dampening: 0.0,
+            nesterov: false,
+            weight_decay: 1e-4,
+            beta1: 0.9,
+            beta2: 0.999,
+            epsilon: 1e-8,
+            grad_clip_norm: None,
+        }
+    }
+}
+
+impl OptimizerConfig {
+    /// Learning rate of epoch `epoch` (0-based).
+    pub fn lr_at(&self, epoch: usize) -> f64 {
+        self.lr_steps
+            .iter()
+            .filter(|(e, _)| *e <= epoch)
+            .max_by_key(|(e, _)| *e)
+            .map_or(self.lr, |(_, lr)| *lr)
+    }
+
+    /// The Burn optimizer.
+    pub fn init(&self) -> ModuleOptimizer {
+        let decay =
+            (self.weight_decay > 0.0).then(|| WeightDecayConfig::new(self.weight_decay as f32));
+        let clip = self
+            .grad_clip_norm
+            .map(|n| burn::grad_clipping::GradientClippingConfig::Norm(n as f32));
+        match self.kind {
+            OptimizerKind::Sgd => {
+                let momentum = (self.momentum > 0.0).then(|| {
+                    MomentumConfig::new()
+                        .with_momentum(self.momentum)
+                        .with_dampening(self.dampening)
+                        .with_nesterov(self.nesterov)
+                });
+                SgdConfig::new()
+                    .with_momentum(momentum)
+                    .with_weight_decay(decay)
+                    .with_gradient_clipping(clip)
+                    .init()
+            }
+            OptimizerKind::Adam => AdamConfig::new()
+                .with_beta_1(self.beta1 as f32)
+                .with_beta_2(self.beta2 as f32)
+                .with_epsilon(self.epsilon as f32)
+                .with_weight_decay(decay)
+                .with_grad_clipping(clip)
+                .init(),
+        }
+    }
+
+    fn validate(&self) -> std::result::Result<(), String> {
+        let lrs = std::iter::once(self.lr).chain(self.lr_steps.iter().map(|s| s.1));
+        if lrs.clone().any(|lr| !(lr > 0.0 && lr.is_finite())) {
+            return Err("optimizer learning rates must be positive".into());
+        }
+        if !(0.0..1.0).contains(&self.momentum) || !(0.0..=1.0).contains(&self.dampening) {
+            return Err("optimizer.momentum must be in [0, 1), dampening in [0, 1]".into());
+        }
+        if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite())
+            || self
+                .grad_clip_norm
+                .is_some_and(|c| !(c > 0.0 && c.is_finite()))
+        {
+            return Err("optimizer.weight_decay must be >= 0, grad_clip_norm > 0".into());
+        }
+        Ok(())
+    }
+}
+
+/// `[network]`: the [`SdfcnnConfig`] fields (Table 13 defaults).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NetworkConfig {
+    /// Semantic classes.
+    pub num_classes: usize,
+    /// Layer0 output size `[height, width]`.
+    pub inner_size: [usize; 2],
+    /// Eq. 15 mean.
+    pub mean: [f32; 3],
+    /// Eq. 15 standard deviation.
+    pub std: [f32; 3],
+    /// Decoder width.
+    pub decoder_dim: usize,
+    /// Stages of each chained residual pooling.
+    pub crp_stages: usize,
+    /// The canonical camera's focal length in image widths: depth targets are scaled to it in
+    /// training and predictions scaled back for the camera at inference
+    /// ([`super::focal`]). `None`: depth in metres as is, whatever the camera.
+    pub depth_focal: Option<f64>,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        let c = SdfcnnConfig::new();
+        NetworkConfig {
+            num_classes: c.num_classes,
+            inner_size: c.inner_size,
+            mean: c.mean,
+            std: c.std,
+            decoder_dim: c.decoder_dim,
+            crp_stages: c.crp_stages,
+            depth_focal: None,
+        }
+    }
+}
+
+impl NetworkConfig {
+    /// The model configuration.
+    pub fn to_config(&self) -> SdfcnnConfig {
+        SdfcnnConfig::new()
+            .with_num_classes(self.num_classes)
+            .with_inner_size(self.inner_size)
+            .with_mean(self.mean)
+            .with_std(self.std)
+            .with_decoder_dim(self.decoder_dim)
+            .with_crp_stages(self.crp_stages)
+    }
+}
+
+impl SdfcnnTrainConfig {
+    /// Parses and checks a config; errors name `path` (and the line).
+    pub fn parse(text: &str, path: &Path) -> Result<Self> {
+        let cfg: SdfcnnTrainConfig = toml::from_str(text).map_err(|e| toml_error(path, text, e))?;
+        cfg.validate().map_err(|m| Error::invalid(path, m))?;
+        Ok(cfg)
+    }
+
+    fn validate(&self) -> std::result::Result<(), String> {
+        if self.model != "sdfcnn" {
+            return Err(format!(
+                "model = \"{}\" is not an SDFCNN config (model = \"sdfcnn\")",
+                self.model
+            ));
+        }
+        if self.batch_size == 0 {
+            return Err("batch_size must be at least 1".into());
+        }
+        if !(1..=100_000).contains(&self.epochs) {
+            return Err(format!(
+                "epochs must be in 1..=100000, got {} (0 would train nothing)",
+                self.epochs
+            ));
+        }
+        if self.data.size.iter().any(|&v| v < 16) || self.network.inner_size.iter().any(|&v| v < 32)
+        {
+            return Err(format!(
+                "data.size {:?} must be at least 16 pixels a side and network.inner_size {:?} at \
+                 least 32 (the encoder's stride)",
+                self.data.size, self.network.inner_size
+            ));
+        }
+        self.data
+            .augment
+            .validate()
+            .map_err(|m| format!("data.{m}"))?;
+        if self.data.train.is_empty() {
+            return Err("[data] train lists no dataset folder".into());
+        }
+        let sizes = [Some(self.data.size), self.data.val_size];
+        if sizes.iter().flatten().any(|s| s.contains(&0)) {
+            return Err("data sizes must be non-zero".into());
+        }
+        if self.network.num_classes == 0 || self.network.num_classes > 255 {
+            return Err("network.num_classes must be in 1..=255 (255 is void)".into());
+        }
+        if let Some(f) = self.network.depth_focal
+            && !(f > 0.05 && f < 20.0)
+        {
+            return Err(format!(
+                "network.depth_focal {f} must be a focal length in image widths (0.05..20; NYUv2: 0.8107)"
+            ));
+        }
+        const MAX_SIDE: usize = 8192;
+        let sizes_ok = [
+            Some(self.data.size),
+            self.data.val_size,
+            Some(self.network.inner_size),
+        ]
+        .iter()
+        .flatten()
+        .all(|s| s.iter().all(|&v| v <= MAX_SIDE));
+        if !sizes_ok || self.batch_size > 4096 {
+            return Err(format!(
+                "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 4096"
+            ));
+        }
+        self.optimizer.validate()?;
+        self.loss.validate()?;
+        self.network
+            .to_config()
+            .init(&Device::flex())
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sdfcnn::training::tests::tiny_config;
+
+    #[test]
+    fn lr_schedule_and_optimizer_defaults_follow_the_paper() {
+        let o = OptimizerConfig::default();
+        assert_eq!(
+            (o.lr_at(0), o.lr_at(19), o.lr_at(20), o.lr_at(500)),
+            (0.1, 0.1, 0.01, 0.01)
+        );
+        assert_eq!((o.momentum, o.dampening), (0.9, 0.0));
+        let l = SdfcnnLossConfig::default();
+        assert_eq!(l.lambda, 0.4);
+    }
+
+    #[test]
+    fn shipped_configs_parse() {
+        for p in [
+            "configs/sdfcnn.toml",
+            "configs/sdfcnn_tiny.toml",
+            "configs/sdfcnn_real.toml",
+        ] {
+            let text = std::fs::read_to_string(p).expect("shipped config");
+            let c = SdfcnnTrainConfig::parse(&text, Path::new(p)).expect("valid");
+            assert_eq!(c.model, "sdfcnn");
+        }
+    }
+
+    #[test]
+    fn config_errors_name_file_and_line() {
+        let text =
+            tiny_config(Path::new("x"), "").replace("lr = 0.01", "lr = 0.01\nmomentun = 0.5");
+        let e = SdfcnnTrainConfig::parse(&text, Path::new("bad.toml")).expect_err("typo");
+        let msg = e.to_string();
+        assert!(
+            msg.starts_with("bad.toml:13:") && msg.contains("momentun"),
+            "{msg}"
+        );
+        let text = tiny_config(Path::new("x"), "")
+            .replace("lambda", "x")
+            .replace("[loss]\n", "[loss]\nlambda = 2.0\n");
+        let e = SdfcnnTrainConfig::parse(&text, Path::new("bad.toml")).expect_err("range");
+        assert!(e.to_string().contains("lambda"), "{e}");
+    }
+}

@@ -6,8 +6,8 @@
 //! 256-channel map. By default the probability map is averaged over four placements of
 //! the network's 16x16 cell grid ([`DetectorConfig::grid_shifts`]).
 
+use super::config::FpfdcnnTrainConfig;
 use super::model::Fpfdcnn;
-use super::training::FpfdcnnTrainConfig;
 use crate::error::{Error, Result};
 use crate::nn::BackendKind;
 use crate::nn::weights::{load_into, resolve_checkpoint};

@@ -1,5 +1,6 @@
 //! FPFDCNN, the keypoint detector/descriptor of SDF-SLAM (Section IV-B, Table 12).
 
+mod config;
 pub mod data;
 pub mod evaluate;
 pub mod homography;

@@ -5,7 +5,7 @@
 //! cargo run --release --example multiview_check -- SEQUENCE TARGET GAPS FACTOR [MIN_PARALLAX_PX]
 //! e.g. `../shared/data/7scenes_redkitchen_0_799 650 10,20,30 1.15`: frame 650 against
 //! frames 640, 630 and 620 (the sequence's camera.toml, the default settings of
-//! `configs/slam.toml`'s `[multiview]`).
+//! `configs/slam/default.toml`'s `[multiview]`).
 
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{LabelImage, TumSequence};

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""ImageNet MobileNetV2-1.0 weights for SDFCNN's encoder (`init` in configs/sdfcnn_real.toml).
+"""ImageNet MobileNetV2-1.0 weights for SDFCNN's encoder (`init` in configs/train/sdfcnn_real.toml).
 
 Makes `mobilenetv2_imagenet_features.safetensors` (torchvision's tensor names, float32, 260
 tensors: the whole feature extractor, no classifier) from the MobileNetV2 that the MIT-licensed

@@ -143,7 +143,7 @@ fn nan_fpfdcnn(dir: &Path) {
     let model = FpfdcnnConfig::new().init(&device).unwrap().map(&mut Poison);
     model.save_file(ckpt.join("model.bpk")).unwrap();
     std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fpfdcnn_tiny.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/train/fpfdcnn_tiny.toml"),
         ckpt.join("config.toml"),
     )
     .unwrap();
@@ -161,11 +161,11 @@ fn tiny_training_config(from: &str, to: &str) -> String {
     smoke_config("fpfdcnn_tiny.toml", from, to)
 }
 
-/// A smoke config of `configs/` with one line changed (paths made absolute).
+/// A smoke config of `configs/train/` with one line changed (paths made absolute).
 fn smoke_config(name: &str, from: &str, to: &str) -> String {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("configs")
+            .join("configs/train")
             .join(name),
     )
     .unwrap()

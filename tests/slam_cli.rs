@@ -139,7 +139,7 @@ fn bad_camera_file_and_checkpoint_fail_before_processing() {
     std::fs::create_dir_all(&ckpt).unwrap();
     std::fs::write(ckpt.join("model.bpk"), b"garbage").unwrap();
     std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fpfdcnn_tiny.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/train/fpfdcnn_tiny.toml"),
         ckpt.join("config.toml"),
     )
     .unwrap();
@@ -158,7 +158,7 @@ fn bad_camera_file_and_checkpoint_fail_before_processing() {
     std::fs::create_dir_all(&sdf).unwrap();
     std::fs::write(sdf.join("model.bpk"), b"garbage").unwrap();
     std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/sdfcnn_tiny.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/train/sdfcnn_tiny.toml"),
         sdf.join("config.toml"),
     )
     .unwrap();
@@ -279,7 +279,7 @@ fn random_fpfdcnn(dir: &Path) {
     let model = sdf_slam::nn::seeded_init(FpfdcnnConfig::new().init(&device).unwrap(), 4);
     model.save_file(dir.join("model.bpk")).unwrap();
     std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/fpfdcnn_tiny.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/train/fpfdcnn_tiny.toml"),
         dir.join("config.toml"),
     )
     .unwrap();

@@ -613,7 +613,7 @@ fn a_sequence_whose_image_folder_is_missing_is_an_error_before_processing() {
 fn orb_baseline_config_is_frame_to_frame_odometry() {
     let seq = box_room();
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut cfg = SlamConfig::load(root.join("configs/slam_orb_baseline.toml")).unwrap();
+    let mut cfg = SlamConfig::load(root.join("configs/slam/orb_baseline.toml")).unwrap();
     cfg.system.threads = false;
     let out = slam(&seq, box_camera(), cfg, DepthMode::Sensor, false)
         .run(quiet())

@@ -36,7 +36,7 @@ struct Cli {
 /// Training from a config file.
 #[derive(clap::Args, Debug)]
 struct RunArgs {
-    /// Training config (TOML), e.g. configs/fpfdcnn.toml.
+    /// Training config (TOML), e.g. configs/train/fpfdcnn.toml.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Continue from the last checkpoint of the output folder (sweeps always resume).

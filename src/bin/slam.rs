@@ -8,7 +8,7 @@
 //! ```text
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
 //!      [--features fpfdcnn|orb] [--fpfdcnn CKPT] [--labels gt|sdfcnn|none] [--sdfcnn CKPT]
-//!      [--config configs/slam.toml] [--out DIR] [--backend ndarray|flex]
+//!      [--config configs/slam/default.toml] [--out DIR] [--backend ndarray|flex]
 //!      [--single-thread] [--max-frames N]
 //! ```
 
@@ -100,7 +100,7 @@ struct Cli {
     /// else none].
     #[arg(long, value_enum)]
     labels: Option<LabelsArg>,
-    /// SLAM configuration (TOML, see configs/slam.toml; configs/slam_orb_baseline.toml is
+    /// SLAM configuration (TOML, see configs/slam/default.toml; configs/slam/orb_baseline.toml is
     /// the frame-to-frame ORB + PnP baseline).
     #[arg(long)]
     config: Option<PathBuf>,

@@ -2,7 +2,7 @@
 //! depth training set (NYU PNG layout) with exact depth, NYU40 labels and poses.
 //!
 //! ```text
-//! synth [--config configs/synth_default.toml] [--seed N] [--frames N]
+//! synth [--config configs/synth/default.toml] [--seed N] [--frames N]
 //!       [--trajectory sweep|rpy|robot|walk] [--scenes N] [--resolution 640x480]
 //!       [--camera fr1|fr2|fr3|FILE] [--blur] [--nyu-only|--sequence-only] --out DIR
 //! ```
@@ -21,7 +21,7 @@ use std::time::Instant;
     about = "Generate synthetic indoor RGB-D data with exact depth, NYU40 labels and poses"
 )]
 struct Cli {
-    /// TOML configuration (default: configs/synth_default.toml when it exists,
+    /// TOML configuration (default: configs/synth/default.toml when it exists,
     /// else the built-in defaults).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -62,7 +62,7 @@ fn main() -> Result<()> {
     let mut cfg = match &cli.config {
         Some(p) => SynthConfig::from_file(p)?,
         None => {
-            let default = Path::new("configs/synth_default.toml");
+            let default = Path::new("configs/synth/default.toml");
             if default.is_file() {
                 SynthConfig::from_file(default)?
             } else {

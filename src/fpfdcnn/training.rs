@@ -1,4 +1,4 @@
-//! FPFDCNN trainer: `train --config configs/fpfdcnn*.toml`.
+//! FPFDCNN trainer: `train --config configs/train/fpfdcnn*.toml`.
 //!
 //! Adam on the ndarray backend by default (flex selectable), seeded data order
 //! and augmentation, a progress bar, per-epoch metrics (`metrics.csv`,

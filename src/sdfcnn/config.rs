@@ -358,9 +358,9 @@ mod tests {
     #[test]
     fn shipped_configs_parse() {
         for p in [
-            "configs/sdfcnn.toml",
-            "configs/sdfcnn_tiny.toml",
-            "configs/sdfcnn_real.toml",
+            "configs/train/sdfcnn.toml",
+            "configs/train/sdfcnn_tiny.toml",
+            "configs/train/sdfcnn_real.toml",
         ] {
             let text = std::fs::read_to_string(p).expect("shipped config");
             let c = SdfcnnTrainConfig::parse(&text, Path::new(p)).expect("valid");

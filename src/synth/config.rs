@@ -1,4 +1,4 @@
-//! Generator configuration, read from TOML (`configs/synth_default.toml` is the
+//! Generator configuration, read from TOML (`configs/synth/default.toml` is the
 //! documented reference). Unknown fields are errors with their line number;
 //! every field has a default, so a file only lists what it changes.
 
@@ -467,12 +467,12 @@ mod tests {
 
     #[test]
     fn shipped_configs_are_valid() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
-        let default = SynthConfig::from_file(dir.join("synth_default.toml")).unwrap();
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/synth");
+        let default = SynthConfig::from_file(dir.join("default.toml")).unwrap();
         assert_eq!(default, SynthConfig::default());
-        let train = SynthConfig::from_file(dir.join("synth_train.toml")).unwrap();
+        let train = SynthConfig::from_file(dir.join("train.toml")).unwrap();
         assert!(!train.output.sequence && train.scenes >= 100);
-        let blur = SynthConfig::from_file(dir.join("synth_blur.toml")).unwrap();
+        let blur = SynthConfig::from_file(dir.join("blur.toml")).unwrap();
         assert!(blur.blur.enabled && blur.trajectory == TrajectoryKind::Rpy);
     }
 

@@ -1,5 +1,5 @@
 //! Every tunable of the SLAM system ([`SlamConfig`]), read from TOML
-//! (`configs/slam.toml` documents each field). Unknown keys are errors, missing
+//! (`configs/slam/default.toml` documents each field). Unknown keys are errors, missing
 //! keys take the defaults below.
 
 use crate::error::{Error, Result};
@@ -586,11 +586,11 @@ mod tests {
                 "{text}: {e}"
             );
         }
-        let shipped = include_str!("../../../configs/slam.toml");
+        let shipped = include_str!("../../../configs/slam/default.toml");
         assert_eq!(
-            SlamConfig::parse(shipped, Path::new("configs/slam.toml")).unwrap(),
+            SlamConfig::parse(shipped, Path::new("configs/slam/default.toml")).unwrap(),
             cfg,
-            "configs/slam.toml must list the defaults"
+            "configs/slam/default.toml must list the defaults"
         );
     }
 }

@@ -364,7 +364,7 @@ fn bad_bases(dir: &Path, head: &str) {
 #[test]
 fn fpfdcnn_sweep_validates() {
     let dir = tmp("fpfdcnn");
-    let base = std::fs::read_to_string("configs/fpfdcnn_tiny.toml").expect("shipped config");
+    let base = std::fs::read_to_string("configs/train/fpfdcnn_tiny.toml").expect("shipped config");
     let sweep = r#"model = "sweep"
 base = "base.toml"
 out = "OUT"
@@ -551,13 +551,13 @@ fn names_labels_and_statistics() {
 
 #[test]
 fn shipped_sweeps_validate() {
-    let p = Path::new("configs/sweep_fpfdcnn_tiny.toml");
+    let p = Path::new("configs/train/sweep_fpfdcnn_tiny.toml");
     let text = std::fs::read_to_string(p).expect("shipped sweep");
     let s = Sweep::load(p, &text, &RunOptions::default()).expect("valid");
     assert_eq!((s.trainer.model, s.runs.len()), ("fpfdcnn", 4));
     // The λ x lr sweep: its data are generated (datasets/generated/sweep, not in git), so
     // without them only the data check, which comes after every point's, may fail.
-    let p = Path::new("configs/sweep_lambda_lr.toml");
+    let p = Path::new("configs/train/sweep_lambda_lr.toml");
     let text = std::fs::read_to_string(p).expect("shipped sweep");
     match Sweep::load(p, &text, &RunOptions::default()) {
         Ok(s) => {

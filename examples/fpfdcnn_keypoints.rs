@@ -21,13 +21,14 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::dataset::fp_pairs::transfer;
 use sdf_slam::features::harris::{HarrisConfig, harris_corners};
-use sdf_slam::features::orb::{OrbConfig, gray_from_f32};
+use sdf_slam::features::orb::OrbConfig;
 use sdf_slam::fpfdcnn::evaluate::{fpfdcnn_matches, orb_matches};
 use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
 use sdf_slam::metrics::matching::CORRECT_MATCH_PX;
 use sdf_slam::nn::BackendKind;
 use sdf_slam::range_matcher::{GuideConfig, RangeMatcherConfig};
 use sdf_slam::raster::GrayF32;
+use sdf_slam::raster::gray_from_f32;
 use std::path::PathBuf;
 
 #[derive(Parser)]

@@ -14,11 +14,12 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::photometric::Degradation;
 use sdf_slam::dataset::{FpConfig, TumSequence, fp_pair};
 use sdf_slam::features::bf_matcher::bf_match;
-use sdf_slam::features::orb::{OrbConfig, detect_and_compute, gray_from_f32, rgb_to_gray};
+use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
 use sdf_slam::metrics::PoseErrorSegment;
 use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
 use sdf_slam::pnp::{PnpConfig, solve_pnp_ransac};
 use sdf_slam::raster::GrayF32;
+use sdf_slam::raster::{gray_from_f32, rgb_to_gray};
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();

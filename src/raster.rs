@@ -1,5 +1,5 @@
-//! Single-channel float images and the few filters the feature code needs
-//! (Gaussian blur, Sobel gradients, bilinear sampling).
+//! Single-channel images and the few filters the feature code needs: grey conversion,
+//! Gaussian blur, Sobel gradients, bilinear sampling.
 
 use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
@@ -114,6 +114,30 @@ pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
         .collect();
     let s: f32 = k.iter().sum();
     k.into_iter().map(|v| v / s).collect()
+}
+
+/// Grey conversion of OpenCV's `cvtColor(RGB2GRAY)` for 8-bit images (fixed point,
+/// 0.299 R + 0.587 G + 0.114 B, rounded).
+pub fn rgb_to_gray(img: &RgbImage) -> GrayImage {
+    let data = img
+        .pixels()
+        .map(|p| {
+            let v = p[0] as u32 * 4899 + p[1] as u32 * 9617 + p[2] as u32 * 1868;
+            ((v + (1 << 13)) >> 14) as u8
+        })
+        .collect();
+    GrayImage::from_raw(img.width(), img.height(), data).unwrap_or_default()
+}
+
+/// An intensity image in [0, 1] as 8-bit grey levels (rounded, clamped), e.g. after
+/// photometric augmentation, for ORB.
+pub fn gray_from_f32(img: &GrayF32) -> GrayImage {
+    let data = img
+        .data
+        .iter()
+        .map(|&v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
+        .collect();
+    GrayImage::from_raw(img.width as u32, img.height as u32, data).unwrap_or_default()
 }
 
 #[cfg(test)]

@@ -194,9 +194,10 @@ mod tests {
     use super::*;
     use crate::dataset::TumSequence;
     use crate::features::bf_matcher::bf_match;
-    use crate::features::orb::{OrbConfig, detect_and_compute, rgb_to_gray};
+    use crate::features::orb::{OrbConfig, detect_and_compute};
     use crate::metrics::PoseErrorSegment;
     use crate::pnp::test_util::{errors, random_pose};
+    use crate::raster::rgb_to_gray;
     use nalgebra::UnitQuaternion;
 
     struct Synthetic {

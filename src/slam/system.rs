@@ -18,8 +18,8 @@ use super::tracking::{FrameRecord, FrameStatus, TrackInput, Tracker, TrackingCou
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, TumSequence};
 use crate::error::{Error, Result};
-use crate::features::orb::rgb_to_gray;
 use crate::geometry::Pose;
+use crate::raster::rgb_to_gray;
 use crate::trajectory::Trajectory;
 use image::RgbImage;
 use nalgebra::Point3;

@@ -35,9 +35,10 @@ pub use fast::{FastCorner, fast_corners};
 
 use super::harris::Keypoint;
 use crate::error::{Error, Result};
-use crate::raster::GrayF32;
+/// The grey conversions live with the other image helpers; re-exported for ORB users.
+pub use crate::raster::{gray_from_f32, rgb_to_gray};
 use brief::{PATCH_SIZE, disc_half_widths, gaussian_blur_7x7, ic_angle, steered_brief};
-use image::{GrayImage, RgbImage};
+use image::GrayImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -137,30 +138,6 @@ impl OrbFeatures {
     pub fn is_empty(&self) -> bool {
         self.keypoints.is_empty()
     }
-}
-
-/// Grey conversion of OpenCV's `cvtColor(RGB2GRAY)` for 8-bit images (fixed point,
-/// 0.299 R + 0.587 G + 0.114 B, rounded).
-pub fn rgb_to_gray(img: &RgbImage) -> GrayImage {
-    let data = img
-        .pixels()
-        .map(|p| {
-            let v = p[0] as u32 * 4899 + p[1] as u32 * 9617 + p[2] as u32 * 1868;
-            ((v + (1 << 13)) >> 14) as u8
-        })
-        .collect();
-    GrayImage::from_raw(img.width(), img.height(), data).unwrap_or_default()
-}
-
-/// An intensity image in [0, 1] as 8-bit grey levels (rounded, clamped), e.g. after
-/// photometric augmentation, for ORB.
-pub fn gray_from_f32(img: &GrayF32) -> GrayImage {
-    let data = img
-        .data
-        .iter()
-        .map(|&v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
-        .collect();
-    GrayImage::from_raw(img.width as u32, img.height as u32, data).unwrap_or_default()
 }
 
 /// Harris block size and constant of OpenCV's `HARRIS_SCORE`.

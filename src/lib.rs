@@ -13,6 +13,7 @@
 //! [`malloc`] (allocator tuning for tensor workloads).
 //! The SLAM system itself is [`slam`] (`cargo run --release --bin slam`).
 
+pub mod bundled;
 pub mod camera;
 pub mod classes;
 pub mod dataset;

@@ -4,11 +4,11 @@
 mod common;
 
 use burn::module::Module;
-use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::nn::BackendKind;
-use sdf_slam::slam::defaults::{
+use sdf_slam::bundled::{
     BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, default_sequence_config, generate_sequence,
 };
+use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use sdf_slam::nn::BackendKind;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -7,11 +7,11 @@ mod common;
 
 use burn::module::{ModuleMapper, Param};
 use burn::prelude::*;
+use sdf_slam::bundled::{default_sequence_config, generate_sequence};
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
-use sdf_slam::slam::defaults::{default_sequence_config, generate_sequence};
 use sdf_slam::slam::map::points_from_depth;
 use sdf_slam::slam::output::write_outputs;
 use sdf_slam::slam::system::Control;

@@ -233,9 +233,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
         (_, true) => None,
         (Some(p), _) => Some(p.clone()),
         (None, false) => {
-            let found = sdf_slam::slam::defaults::bundled_weights(
-                sdf_slam::slam::defaults::BUNDLED_FPFDCNN,
-            );
+            let found = sdf_slam::bundled::bundled_weights(sdf_slam::bundled::BUNDLED_FPFDCNN);
             if found.is_none() {
                 eprintln!("note: no bundled weights/fpfdcnn found: ORB + BF only (--fpfdcnn CKPT)");
             }

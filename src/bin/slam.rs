@@ -3,7 +3,7 @@
 //!
 //! With no arguments: the synthetic default sequence (generated on first use),
 //! RGB-D mode, FPFDCNN keypoints and SDFCNN labels from the bundled weights
-//! (see [`sdf_slam::slam::defaults`]).
+//! (see [`sdf_slam::bundled`]).
 //!
 //! ```text
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
@@ -15,14 +15,14 @@
 use anyhow::{Context, Result, bail};
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
+use sdf_slam::bundled::{
+    BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, bundled_weights, default_sequence,
+    default_sequence_config, generate_sequence,
+};
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
 use sdf_slam::nn::BackendKind;
-use sdf_slam::slam::defaults::{
-    BUNDLED_FPFDCNN, BUNDLED_SDFCNN, DEFAULT_SEQUENCE, bundled_weights, default_sequence,
-    default_sequence_config, generate_sequence,
-};
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
 use sdf_slam::slam::tracking::FrameRecord;

@@ -12,12 +12,12 @@
 //! * [`system`] — the three stages as threads passing messages, or in order on
 //!   one thread; [`evaluation`] — ATE/RPE and Table 11 accuracy against ground
 //!   truth; [`report`] — `report.md` / `report.json`; [`output`] — every file
-//!   of a run; [`config`] — every tunable; [`defaults`] — bundled weights and the
-//!   generated default sequence.
+//!   of a run; [`config`] — every tunable. The bundled weights and the default
+//!   sequence of a run with no arguments are the binaries' concern
+//!   ([`crate::bundled`]).
 
 pub mod config;
 pub mod correction;
-pub mod defaults;
 pub mod depth_edges;
 pub mod evaluation;
 pub mod keypoints;

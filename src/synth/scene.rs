@@ -342,8 +342,15 @@ fn walls(w: f32, d: f32, notch: Option<[f32; 4]>) -> Vec<Wall> {
 /// Floor, ceiling, walls, the L-shape's block, skirting boards and ceiling lamps.
 fn shell(b: &mut furniture::Builder) {
     let r = b.room.clone();
-    let (w, d, h) = (r.width, r.depth, r.height);
     let t = 0.2;
+    floor_and_ceiling(b, &r, t);
+    wall_slabs(b, &r, t);
+    skirting(b, &r);
+    ceiling_lamps(b, &r);
+}
+
+/// The floor (planks, tiles or carpet; kitchens mostly tiled) and ceiling slabs, `t` thick.
+fn floor_and_ceiling(b: &mut furniture::Builder, r: &Room, t: f32) {
     let floor = match b.rng.random_range(0..10) {
         0..=4 => Material::Planks {
             color: b.pick(&[
@@ -378,6 +385,7 @@ fn shell(b: &mut furniture::Builder) {
     } else {
         floor
     };
+    let (w, d, h) = (r.width, r.depth, r.height);
     let seed = b.seed();
     b.shell_solid(Solid {
         seed,
@@ -400,6 +408,11 @@ fn shell(b: &mut furniture::Builder) {
             },
         )
     });
+}
+
+/// A `t`-thick slab behind each wall line, painted, one maybe an accent wall.
+fn wall_slabs(b: &mut furniture::Builder, r: &Room, t: f32) {
+    let h = r.height;
     let paint = Material::Paint {
         color: b.pick(&WALL_PAINT),
     };
@@ -433,7 +446,10 @@ fn shell(b: &mut furniture::Builder) {
             ..Solid::aabb(min, max, label::WALL, mat)
         });
     }
-    // Skirting boards.
+}
+
+/// Skirting boards along every wall, plastic or wood.
+fn skirting(b: &mut furniture::Builder, r: &Room) {
     let skirting = if b.rng.random_bool(0.6) {
         Material::Plastic {
             color: srgb(235, 235, 230),
@@ -463,11 +479,15 @@ fn shell(b: &mut furniture::Builder) {
             b.fixture(s);
         }
     }
-    // Ceiling lamps: flush discs (NYU "light" -> otherstructure) or pendants (lamp).
+}
+
+/// Ceiling lamps: flush discs (NYU "light" -> otherstructure) or pendants (lamp).
+fn ceiling_lamps(b: &mut furniture::Builder, r: &Room) {
+    let h = r.height;
     let n = if r.area() > 18.0 { 2 } else { 1 };
     let pendant = b.rng.random_bool(0.5);
     for k in 0..n {
-        let (x, y) = lamp_xy(&r, k, n);
+        let (x, y) = lamp_xy(r, k, n);
         let rad = b.rng.random_range(0.18..0.3);
         let disc = |z0: f32, hh: f32, label: u8, material: Material| Solid {
             shape: Shape::Cylinder,

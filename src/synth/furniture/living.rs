@@ -13,6 +13,51 @@ use rand::RngExt;
 pub fn desk(b: &mut Builder) -> Group {
     let mut g = Group::default();
     let (w, d, h) = (b.r(1.0, 1.6), b.r(0.6, 0.78), b.r(0.72, 0.76));
+    let y0 = 0.02;
+    desk_frame(b, &mut g, w, d, h, y0);
+    let dark = Material::Plastic {
+        color: srgb(30, 30, 32),
+    };
+    desk_screens(b, &mut g, w, h, y0, dark);
+    let s = b.seed();
+    g.bx(
+        &L,
+        [b.r(-0.1, 0.1), y0 + 0.45, h + 0.012],
+        [0.44, 0.14, 0.024],
+        label::OTHER_PROP,
+        dark,
+        s,
+    );
+    g.bx(
+        &L,
+        [0.32, y0 + 0.45, h + 0.015],
+        [0.06, 0.1, 0.03],
+        label::OTHER_PROP,
+        dark,
+        s ^ 1,
+    );
+    let n = (b.clutter * 3.0) as usize + b.rng.random_range(0..2);
+    props(
+        b,
+        &mut g,
+        -w * 0.5,
+        -w * 0.5 + 0.45,
+        y0,
+        y0 + d,
+        h,
+        n.min(3),
+    );
+    if b.chance(0.5) {
+        table_lamp(b, &mut g, w * 0.5 - 0.15, y0 + 0.15, h);
+    }
+    desk_chair_and_box(b, &mut g, w, d, y0);
+    g.focus.push(V3::new(0.0, y0 + d * 0.5, h + 0.1));
+    g.focus.push(V3::new(0.0, y0 + 0.2, h + 0.3));
+    g
+}
+
+/// The desk's top, legs and maybe a drawer pedestal in place of the right legs.
+fn desk_frame(b: &mut Builder, g: &mut Group, w: f32, d: f32, h: f32, y0: f32) {
     let wood = b.chance(0.6);
     let top = if wood {
         b.wood()
@@ -25,7 +70,6 @@ pub fn desk(b: &mut Builder) -> Group {
         color: b.pick(&[srgb(60, 60, 62), srgb(190, 190, 195)]),
     };
     let s = b.seed();
-    let y0 = 0.02;
     g.bx(
         &L,
         [0.0, y0 + d * 0.5, h - 0.015],
@@ -72,15 +116,15 @@ pub fn desk(b: &mut Builder) -> Group {
             s ^ 1,
         );
     }
-    // Monitors (NYU "monitor" -> otherprop) or a television on a bigger desk.
+}
+
+/// Monitors (NYU "monitor" -> otherprop) or a television on a bigger desk.
+fn desk_screens(b: &mut Builder, g: &mut Group, w: f32, h: f32, y0: f32, dark: Material) {
     let screens = if w > 1.3 && b.chance(0.4) { 2 } else { 1 };
     let screen_label = if b.chance(0.25) {
         label::TELEVISION
     } else {
         label::OTHER_PROP
-    };
-    let dark = Material::Plastic {
-        color: srgb(30, 30, 32),
     };
     for k in 0..screens {
         let x = if screens == 2 {
@@ -118,41 +162,13 @@ pub fn desk(b: &mut Builder) -> Group {
             s,
         );
     }
-    let s = b.seed();
-    g.bx(
-        &L,
-        [b.r(-0.1, 0.1), y0 + 0.45, h + 0.012],
-        [0.44, 0.14, 0.024],
-        label::OTHER_PROP,
-        dark,
-        s,
-    );
-    g.bx(
-        &L,
-        [0.32, y0 + 0.45, h + 0.015],
-        [0.06, 0.1, 0.03],
-        label::OTHER_PROP,
-        dark,
-        s ^ 1,
-    );
-    let n = (b.clutter * 3.0) as usize + b.rng.random_range(0..2);
-    props(
-        b,
-        &mut g,
-        -w * 0.5,
-        -w * 0.5 + 0.45,
-        y0,
-        y0 + d,
-        h,
-        n.min(3),
-    );
-    if b.chance(0.5) {
-        table_lamp(b, &mut g, w * 0.5 - 0.15, y0 + 0.15, h);
-    }
-    // The chair, pulled up to the desk and facing it.
+}
+
+/// The chair, pulled up to the desk and facing it, and maybe a box under the desk.
+fn desk_chair_and_box(b: &mut Builder, g: &mut Group, w: f32, d: f32, y0: f32) {
     let (c, sn) = yaw(std::f64::consts::PI + b.r(-0.5, 0.5) as f64);
     let cp = L.sub([b.r(-0.2, 0.2), y0 + d + b.r(0.05, 0.35), 0.0], c, sn);
-    chair(b, &mut g, &cp);
+    chair(b, g, &cp);
     if b.chance(0.3 + 0.4 * b.clutter) {
         let s = b.seed();
         g.bx(
@@ -164,9 +180,6 @@ pub fn desk(b: &mut Builder) -> Group {
             s,
         );
     }
-    g.focus.push(V3::new(0.0, y0 + d * 0.5, h + 0.1));
-    g.focus.push(V3::new(0.0, y0 + 0.2, h + 0.3));
-    g
 }
 
 /// A bed (frame, mattress, duvet, headboard, pillows) with night stands and lamps.

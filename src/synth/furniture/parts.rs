@@ -136,19 +136,7 @@ pub(super) fn props(
 ) {
     let mut taken: Vec<(f32, f32)> = Vec::new();
     for _ in 0..n {
-        // A spot at least 0.3 m from the other props, if one is found.
-        let mut spot = None;
-        for _ in 0..8 {
-            let (x, y) = (b.r(x0 + 0.1, x1 - 0.1), b.r(y0 + 0.08, y1 - 0.08));
-            if taken
-                .iter()
-                .all(|&(u, v)| (u - x) * (u - x) + (v - y) * (v - y) > 0.09)
-            {
-                spot = Some((x, y));
-                break;
-            }
-        }
-        let Some((x, y)) = spot else {
+        let Some((x, y)) = free_spot(b, &taken, x0, x1, y0, y1) else {
             continue;
         };
         taken.push((x, y));
@@ -156,127 +144,169 @@ pub(super) fn props(
         let p = L.sub([x, y, z], c, s);
         let seed = b.seed();
         match b.rng.random_range(0..7) {
-            0 => {
-                let (w, d, h) = (b.r(0.15, 0.35), b.r(0.12, 0.3), b.r(0.08, 0.25));
-                g.bx(
-                    &p,
-                    [0.0, 0.0, h * 0.5],
-                    [w, d, h],
-                    label::BOX,
-                    Material::Cardboard,
-                    seed,
-                );
-            }
-            1 => {
-                let color = b.pick(&[
-                    srgb(200, 80, 60),
-                    srgb(60, 90, 160),
-                    srgb(220, 220, 210),
-                    srgb(60, 140, 90),
-                ]);
-                let (r, h) = (b.r(0.035, 0.07), b.r(0.1, 0.3));
-                g.cyl(
-                    &p,
-                    0.0,
-                    0.0,
-                    0.0,
-                    r,
-                    h,
-                    label::OTHER_PROP,
-                    Material::Plastic { color },
-                    seed,
-                );
-            }
-            2 => {
-                g.bx(
-                    &p,
-                    [0.0, 0.0, 0.001],
-                    [0.21, 0.297, 0.002],
-                    label::PAPER,
-                    Material::Paper,
-                    seed,
-                );
-                if b.chance(0.5) {
-                    g.bx(
-                        &p,
-                        [0.01, 0.01, 0.003],
-                        [0.21, 0.297, 0.002],
-                        label::PAPER,
-                        Material::Paper,
-                        seed ^ 1,
-                    );
-                }
-            }
-            3 => {
-                let mut zz = 0.0;
-                for _ in 0..b.rng.random_range(1..4) {
-                    let (w, d, t) = (b.r(0.15, 0.25), b.r(0.2, 0.3), b.r(0.02, 0.05));
-                    let color = b.book_color();
-                    let s = b.seed();
-                    g.bx(
-                        &p,
-                        [0.0, 0.0, zz + t * 0.5],
-                        [w, d, t],
-                        label::BOOKS,
-                        Material::Book { color },
-                        s,
-                    );
-                    zz += t;
-                }
-            }
-            4 => {
-                g.cyl(
-                    &p,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.07,
-                    0.12,
-                    label::OTHER_PROP,
-                    Material::Plastic {
-                        color: srgb(170, 90, 60),
-                    },
-                    seed,
-                );
-                g.cyl(
-                    &p,
-                    0.0,
-                    0.0,
-                    0.12,
-                    0.1,
-                    0.15,
-                    label::OTHER_PROP,
-                    Material::Foliage,
-                    seed ^ 3,
-                );
-            }
-            5 => {
-                let color = b.pick(&FABRICS);
-                g.bx(
-                    &p,
-                    [0.0, 0.0, 0.15],
-                    [0.32, 0.15, 0.3],
-                    label::BAG,
-                    Material::Fabric { color },
-                    seed,
-                );
-            }
-            _ => {
-                let color = b.pick(&[srgb(240, 240, 240), srgb(40, 40, 40), srgb(190, 60, 50)]);
-                g.cyl(
-                    &p,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.04,
-                    0.1,
-                    label::OTHER_PROP,
-                    Material::Plastic { color },
-                    seed,
-                );
-            }
+            0 => prop_box(b, g, &p, seed),
+            1 => prop_bottle(b, g, &p, seed),
+            2 => prop_papers(b, g, &p, seed),
+            3 => prop_book_stack(b, g, &p),
+            4 => prop_plant(g, &p, seed),
+            5 => prop_bag(b, g, &p, seed),
+            _ => prop_cup(b, g, &p, seed),
         }
     }
+}
+
+/// A spot at least 0.3 m from the `taken` ones, if one is found in eight tries.
+fn free_spot(
+    b: &mut Builder,
+    taken: &[(f32, f32)],
+    x0: f32,
+    x1: f32,
+    y0: f32,
+    y1: f32,
+) -> Option<(f32, f32)> {
+    for _ in 0..8 {
+        let (x, y) = (b.r(x0 + 0.1, x1 - 0.1), b.r(y0 + 0.08, y1 - 0.08));
+        if taken
+            .iter()
+            .all(|&(u, v)| (u - x) * (u - x) + (v - y) * (v - y) > 0.09)
+        {
+            return Some((x, y));
+        }
+    }
+    None
+}
+
+/// A cardboard box of random size.
+fn prop_box(b: &mut Builder, g: &mut Group, p: &Place, seed: u32) {
+    let (w, d, h) = (b.r(0.15, 0.35), b.r(0.12, 0.3), b.r(0.08, 0.25));
+    g.bx(
+        p,
+        [0.0, 0.0, h * 0.5],
+        [w, d, h],
+        label::BOX,
+        Material::Cardboard,
+        seed,
+    );
+}
+
+/// A coloured plastic bottle or tin.
+fn prop_bottle(b: &mut Builder, g: &mut Group, p: &Place, seed: u32) {
+    let color = b.pick(&[
+        srgb(200, 80, 60),
+        srgb(60, 90, 160),
+        srgb(220, 220, 210),
+        srgb(60, 140, 90),
+    ]);
+    let (r, h) = (b.r(0.035, 0.07), b.r(0.1, 0.3));
+    g.cyl(
+        p,
+        0.0,
+        0.0,
+        0.0,
+        r,
+        h,
+        label::OTHER_PROP,
+        Material::Plastic { color },
+        seed,
+    );
+}
+
+/// An A4 sheet, sometimes with a second one on top.
+fn prop_papers(b: &mut Builder, g: &mut Group, p: &Place, seed: u32) {
+    g.bx(
+        p,
+        [0.0, 0.0, 0.001],
+        [0.21, 0.297, 0.002],
+        label::PAPER,
+        Material::Paper,
+        seed,
+    );
+    if b.chance(0.5) {
+        g.bx(
+            p,
+            [0.01, 0.01, 0.003],
+            [0.21, 0.297, 0.002],
+            label::PAPER,
+            Material::Paper,
+            seed ^ 1,
+        );
+    }
+}
+
+/// A stack of one to three books lying flat.
+fn prop_book_stack(b: &mut Builder, g: &mut Group, p: &Place) {
+    let mut zz = 0.0;
+    for _ in 0..b.rng.random_range(1..4) {
+        let (w, d, t) = (b.r(0.15, 0.25), b.r(0.2, 0.3), b.r(0.02, 0.05));
+        let color = b.book_color();
+        let s = b.seed();
+        g.bx(
+            p,
+            [0.0, 0.0, zz + t * 0.5],
+            [w, d, t],
+            label::BOOKS,
+            Material::Book { color },
+            s,
+        );
+        zz += t;
+    }
+}
+
+/// A small plant in a terracotta pot.
+fn prop_plant(g: &mut Group, p: &Place, seed: u32) {
+    g.cyl(
+        p,
+        0.0,
+        0.0,
+        0.0,
+        0.07,
+        0.12,
+        label::OTHER_PROP,
+        Material::Plastic {
+            color: srgb(170, 90, 60),
+        },
+        seed,
+    );
+    g.cyl(
+        p,
+        0.0,
+        0.0,
+        0.12,
+        0.1,
+        0.15,
+        label::OTHER_PROP,
+        Material::Foliage,
+        seed ^ 3,
+    );
+}
+
+/// A fabric bag standing upright.
+fn prop_bag(b: &mut Builder, g: &mut Group, p: &Place, seed: u32) {
+    let color = b.pick(&FABRICS);
+    g.bx(
+        p,
+        [0.0, 0.0, 0.15],
+        [0.32, 0.15, 0.3],
+        label::BAG,
+        Material::Fabric { color },
+        seed,
+    );
+}
+
+/// A mug or cup.
+fn prop_cup(b: &mut Builder, g: &mut Group, p: &Place, seed: u32) {
+    let color = b.pick(&[srgb(240, 240, 240), srgb(40, 40, 40), srgb(190, 60, 50)]);
+    g.cyl(
+        p,
+        0.0,
+        0.0,
+        0.0,
+        0.04,
+        0.1,
+        label::OTHER_PROP,
+        Material::Plastic { color },
+        seed,
+    );
 }
 
 /// A desk or bedside lamp standing at `(x, y, z)`, with its light.

@@ -29,6 +29,10 @@ pub enum Error {
     /// A value could not be written as TOML (its message is the toml crate's).
     #[error(transparent)]
     TomlWrite(#[from] toml::ser::Error),
+    /// An error of a network or a library below, kept whole: its message and its source
+    /// chain (see [`Error::wrap`]).
+    #[error(transparent)]
+    Wrapped(Box<dyn std::error::Error + Send + Sync + 'static>),
     /// Anything else: inconsistent arguments, degenerate data.
     #[error("{0}")]
     Msg(String),
@@ -58,6 +62,11 @@ impl Error {
             path: path.as_ref().to_path_buf(),
             msg: msg.into(),
         }
+    }
+
+    /// Keeps another error as it is (same message, same source chain).
+    pub fn wrap(e: impl std::error::Error + Send + Sync + 'static) -> Self {
+        Error::Wrapped(Box::new(e))
     }
 
     pub fn msg(msg: impl Into<String>) -> Self {

@@ -297,10 +297,7 @@ impl FpfdcnnDetector {
             }
         }
         let input = Tensor::<4>::from_data(TensorData::new(data, [1, 1, hp, wp]), &self.device);
-        let out = self
-            .model
-            .forward(input)
-            .map_err(|e| Error::msg(e.to_string()))?;
+        let out = self.model.forward(input)?;
         let prob = out
             .prob
             .clone()
@@ -349,8 +346,7 @@ impl FpfdcnnDetector {
         if !points.is_empty() {
             let d = self
                 .model
-                .descriptors_at(&out.descriptors, 0, [hp, wp], &points)
-                .map_err(|e| Error::msg(e.to_string()))?;
+                .descriptors_at(&out.descriptors, 0, [hp, wp], &points)?;
             for v in d {
                 // Scale first so that squaring cannot overflow.
                 let peak = v.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-30);

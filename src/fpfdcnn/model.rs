@@ -67,6 +67,12 @@ pub enum FpfdcnnError {
     Data(String),
 }
 
+impl From<FpfdcnnError> for crate::error::Error {
+    fn from(e: FpfdcnnError) -> Self {
+        crate::error::Error::wrap(e)
+    }
+}
+
 /// FPFDCNN outputs before the FD layer.
 #[derive(Debug, Clone)]
 pub struct FpfdcnnOutput {

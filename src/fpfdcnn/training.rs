@@ -35,7 +35,7 @@ struct BatchLoss {
 
 fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Result<BatchLoss> {
     let size = [cfg.height, cfg.width];
-    let err = |e: super::FpfdcnnError| Error::msg(e.to_string());
+    let err = Error::from;
     let out_a = model.forward(batch.image_a).map_err(err)?;
     let out_b = model.forward(batch.image_b).map_err(err)?;
     let l = &cfg.loss;
@@ -96,7 +96,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     if let Some(o) = &opts.out {
         cfg.out = o.clone();
     }
-    let saved_text = toml::to_string_pretty(&cfg).map_err(|e| Error::msg(e.to_string()))?;
+    let saved_text = toml::to_string_pretty(&cfg)?;
     let mut run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
     run.keep = cfg.keep_checkpoints;
     let log = |m: &str| {
@@ -185,10 +185,7 @@ fn new_model(
     resuming: bool,
     log: &dyn Fn(&str),
 ) -> Result<(Fpfdcnn, ModuleOptimizer)> {
-    let mut model = cfg
-        .network()
-        .init(device)
-        .map_err(|e| Error::msg(e.to_string()))?;
+    let mut model = cfg.network().init(device)?;
     let mut adam = AdamConfig::new();
     if cfg.grad_clip_norm > 0.0 {
         adam = adam.with_grad_clipping(Some(GradientClippingConfig::Norm(
@@ -327,7 +324,7 @@ fn epoch_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> Result<Pro
         ProgressStyle::with_template(
             "epoch {prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})",
         )
-        .map_err(|e| Error::msg(e.to_string()))?
+        .map_err(Error::wrap)?
         .progress_chars("=> "),
     );
     bar.set_prefix(format!("{}/{epochs}", epoch + 1));

@@ -279,9 +279,7 @@ impl SdfcnnPredictor {
 
     /// Outputs (logits, depth) for a batch `[N, 3, H, W]` in `[0, 1]`, at its resolution.
     pub fn forward(&self, images: Tensor<4>) -> Result<SdfcnnOutput> {
-        self.model
-            .forward(images)
-            .map_err(|e| Error::msg(e.to_string()))
+        self.model.forward(images).map_err(Error::from)
     }
 
     /// Labels and depth of one RGB image at its resolution, with the seconds the network and

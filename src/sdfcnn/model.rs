@@ -113,6 +113,12 @@ pub enum SdfcnnError {
     Config(String),
 }
 
+impl From<SdfcnnError> for crate::error::Error {
+    fn from(e: SdfcnnError) -> Self {
+        crate::error::Error::wrap(e)
+    }
+}
+
 /// SDFCNN predictions.
 #[derive(Debug, Clone)]
 pub struct SdfcnnOutput {

@@ -204,9 +204,7 @@ fn initialise(
     let samples = train.load_batch(&indices, cfg.data.size, &none, &mut batch_rng(0, 0, 0))?;
     let snapshot = model.clone().valid();
     let batch = SdfcnnBatch::from_samples(&samples, &model_device(&snapshot))?;
-    let probe = snapshot
-        .encoder_bn_probe(batch.images)
-        .map_err(|e| Error::msg(e.to_string()))?;
+    let probe = snapshot.encoder_bn_probe(batch.images)?;
     let r = super::imagenet::bn_agreement(&probe);
     let values: Vec<f64> = r.iter().map(|(_, v)| *v).collect();
     let stats = crate::metrics::Stats::of(&values);
@@ -234,7 +232,7 @@ pub(super) fn forward(
         LossResolution::Quarter => model.forward_quarter(images),
         LossResolution::Full => model.forward(images),
     };
-    out.map_err(|e| Error::msg(e.to_string()))
+    Ok(out?)
 }
 
 pub(super) fn scalar(t: &Tensor<1>) -> f64 {

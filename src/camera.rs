@@ -284,7 +284,10 @@ impl Camera {
 }
 
 /// A TOML error with the file, and the line when the parser knows it.
-pub(crate) fn toml_error(path: &Path, text: &str, e: toml::de::Error) -> Error {
+///
+/// Public so that config readers outside the library (the `train` application's sweeps)
+/// report TOML errors exactly as the library's own config readers do.
+pub fn toml_error(path: &Path, text: &str, e: toml::de::Error) -> Error {
     match e.span() {
         Some(span) => {
             let line = text[..span.start.min(text.len())].matches('\n').count() + 1;

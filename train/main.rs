@@ -2,8 +2,9 @@
 //!
 //! `train --config FILE [--resume] [--out DIR] [--backend ndarray|flex] [--epochs N]` trains
 //! the network the config names (`model = "fpfdcnn"` or `"sdfcnn"`), or runs a sweep of
-//! training runs (`model = "sweep"`, see `sdf_slam::training::sweep`). `--dry-run` only
-//! checks the config (and lists a sweep's runs).
+//! training runs (`model = "sweep"`, see [`sweep`]). `--dry-run` only
+//! checks the config (and lists a sweep's runs). The networks it knows are listed in one
+//! place, [`trainers`].
 //!
 //! `train export CKPT --out DIR` writes half-precision weights (the bundled layout);
 //! `train average CKPT... --out DIR` averages FPFDCNN checkpoints' weights (SWA).
@@ -12,16 +13,17 @@
 //! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
 //! the trainable-parameter count.
 
+mod sweep;
+mod trainers;
+
 use anyhow::{Context, Result};
-use burn::prelude::*;
-use clap::{Parser, Subcommand, ValueEnum};
-use sdf_slam::fpfdcnn::FpfdcnnConfig;
+use clap::{Parser, Subcommand};
 use sdf_slam::nn::BackendKind;
-use sdf_slam::nn::{ShapeTrace, trainable_params};
-use sdf_slam::sdfcnn::SdfcnnConfig;
-use sdf_slam::training::sweep::{self, Sweep};
+use sdf_slam::nn::ShapeTrace;
 use sdf_slam::training::{RunOptions, config_model};
 use std::path::PathBuf;
+use sweep::Sweep;
+use trainers::Network;
 
 #[derive(Parser, Debug)]
 #[command(about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)")]
@@ -108,14 +110,6 @@ struct SummaryArgs {
     backend: BackendKind,
 }
 
-#[derive(ValueEnum, Clone, Copy, Debug)]
-enum Network {
-    /// Keypoint detector/descriptor (Table 12).
-    Fpfdcnn,
-    /// Semantic segmentation + depth (Table 13).
-    Sdfcnn,
-}
-
 fn main() -> Result<()> {
     sdf_slam::malloc::tune_for_tensors();
     let cli = Cli::parse();
@@ -144,47 +138,35 @@ fn train(args: RunArgs) -> Result<()> {
         if model == "sweep" {
             print!("{}", Sweep::load(&config, &text, &opts)?.describe()?);
         } else {
-            sweep::check_training_config(&model, &config, &text)?;
+            trainers::check_training_config(&model, &config, &text)?;
             println!("{}: a valid {model} config", config.display());
         }
         return Ok(());
     }
-    match model.as_str() {
-        "fpfdcnn" => sdf_slam::fpfdcnn::training::run(&config, &text, &opts)?,
-        "sdfcnn" => sdf_slam::sdfcnn::training::run(&config, &text, &opts)?,
-        "sweep" => sweep::run(&config, &text, &opts)?,
-        other => anyhow::bail!(
-            "{}: no trainer for model = \"{other}\" (expected \"fpfdcnn\", \"sdfcnn\" or \"sweep\")",
-            config.display()
-        ),
+    if model == "sweep" {
+        sweep::run(&config, &text, &opts)?;
+    } else {
+        let Some(trainer) = trainers::trainer(&model) else {
+            return Err(trainers::no_trainer(&config, &model));
+        };
+        (trainer.run)(&config, &text, &opts)?;
     }
     Ok(())
 }
 
 /// `train export`: half-precision weights and the training config, written atomically.
 fn export(args: &ExportArgs) -> Result<()> {
-    use sdf_slam::nn::weights::{resolve_checkpoint, save_f16};
+    use sdf_slam::nn::weights::resolve_checkpoint;
     let (weights, config) = resolve_checkpoint(&args.checkpoint)?;
     let text = sdf_slam::io::read_text(&config)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let target = args.out.join("model.bpk");
-    match config_model(&text, &config)?.as_str() {
-        "fpfdcnn" => {
-            let det = sdf_slam::fpfdcnn::inference::FpfdcnnDetector::load(
-                &weights,
-                BackendKind::Flex,
-                Default::default(),
-            )?;
-            save_f16(det.model, &target)?;
-        }
-        "sdfcnn" => {
-            let p =
-                sdf_slam::sdfcnn::inference::SdfcnnPredictor::load(&weights, BackendKind::Flex)?;
-            p.save_f16(&target)?;
-        }
-        other => anyhow::bail!("{}: no network called \"{other}\"", config.display()),
-    }
+    let model = config_model(&text, &config)?;
+    let Some(trainer) = trainers::trainer(&model) else {
+        anyhow::bail!("{}: no network called \"{model}\"", config.display());
+    };
+    (trainer.export)(&weights, &target)?;
     sdf_slam::io::write_atomic(args.out.join("config.toml"), text.as_bytes())?;
     let size = std::fs::metadata(&target)?.len();
     println!(
@@ -247,34 +229,9 @@ fn average(args: &AverageArgs) -> Result<()> {
 }
 
 fn summary(args: &SummaryArgs) -> Result<()> {
-    let device = args.backend.device();
     let [h, w] = [args.height, args.width];
     let mut trace = ShapeTrace::enabled();
-    let (parameters, all) = match args.network {
-        Network::Fpfdcnn => {
-            let model = FpfdcnnConfig::new()
-                .init(&device)
-                .context("building FPFDCNN")?;
-            let out = model
-                .forward_traced(Tensor::zeros([1, 1, h, w], &device), &mut trace)
-                .context("FPFDCNN forward")?;
-            let fd = model.full_descriptors(out.descriptors, [h, w]);
-            trace.record("FD", "bilinear", &fd);
-            (trainable_params(&model), model.num_params())
-        }
-        Network::Sdfcnn => {
-            let model = SdfcnnConfig::new()
-                .init(&device)
-                .context("building SDFCNN")?;
-            if h == 0 || w == 0 {
-                anyhow::bail!("empty input size {h}x{w}");
-            }
-            model
-                .forward_traced(Tensor::zeros([1, 3, h, w], &device), &mut trace)
-                .context("SDFCNN forward")?;
-            (trainable_params(&model), model.num_params())
-        }
-    };
+    let (parameters, all) = (args.network.trainer().summary)(&mut trace, [h, w], args.backend)?;
     println!(
         "{:?} on {:?}, input {h}x{w} (HxW)",
         args.network, args.backend

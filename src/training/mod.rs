@@ -1,10 +1,10 @@
 //! What both trainers share: run folders with atomic per-epoch checkpoints and
 //! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
-//! data order, and the NaN guard; and config-file sweeps over them ([`sweep`]).
+//! data order, and the NaN guard. Config-file sweeps over the trainers live in the `train`
+//! application (`train/sweep/`), which knows the concrete models.
 
 pub mod checkpoint;
 pub mod history;
-pub mod sweep;
 
 /// Backends live with the networks ([`crate::nn::backend`]); re-exported for the trainers.
 pub use crate::nn::backend::{self, BackendKind};

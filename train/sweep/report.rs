@@ -14,9 +14,9 @@
 
 use super::values::sanitize;
 use super::{At, Run, Sweep, value_label};
-use crate::error::{Error, Result};
-use crate::plot::{Chart, Series, line_charts};
-use crate::training::RunDir;
+use sdf_slam::error::{Error, Result};
+use sdf_slam::plot::{Chart, Series, line_charts};
+use sdf_slam::training::RunDir;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -96,7 +96,7 @@ impl RunResult<'_> {
 /// Reads a trainer's `metrics.csv` (`epoch,lr,seconds,<metrics...>`, empty cells for missing
 /// values).
 pub fn read_metrics(path: &Path) -> Result<Vec<EpochRow>> {
-    let text = crate::io::read_text(path)?;
+    let text = sdf_slam::io::read_text(path)?;
     let mut lines = text.lines().enumerate();
     let header: Vec<&str> = match lines.next() {
         Some((_, h)) => h.split(',').collect(),
@@ -180,7 +180,7 @@ pub fn collect(sweep: &Sweep) -> Result<Vec<RunResult<'_>>> {
             }
         }
         let status = if err.is_file() {
-            Status::Failed(crate::io::read_text(&err)?.trim().to_string())
+            Status::Failed(sdf_slam::io::read_text(&err)?.trim().to_string())
         } else if latest.as_ref().is_some_and(|c| c.state.epoch >= run.epochs) {
             Status::Done
         } else {
@@ -594,12 +594,12 @@ fn plot_losses(sweep: &Sweep, results: &[RunResult<'_>]) -> Result<()> {
 /// Rewrites every result file from the run folders; returns the best-run summary line.
 pub fn write(sweep: &Sweep) -> Result<Option<String>> {
     let results = collect(sweep)?;
-    crate::io::write_atomic(
+    sdf_slam::io::write_atomic(
         sweep.out.join("results.csv"),
         results_csv(sweep, &results).as_bytes(),
     )?;
     let (md, summary) = results_md(sweep, &results);
-    crate::io::write_atomic(sweep.out.join("results.md"), md.as_bytes())?;
+    sdf_slam::io::write_atomic(sweep.out.join("results.md"), md.as_bytes())?;
     plot_metrics(sweep, &results)?;
     plot_losses(sweep, &results)?;
     Ok(summary)

@@ -98,7 +98,7 @@ pub(super) fn apply(
 }
 
 /// The value at a dotted path.
-pub(super) fn lookup<'a>(value: &'a Value, path: &str) -> Option<&'a Value> {
+pub(crate) fn lookup<'a>(value: &'a Value, path: &str) -> Option<&'a Value> {
     path.split('.')
         .try_fold(value, |v, seg| v.as_table()?.get(seg))
 }

@@ -2,7 +2,9 @@ use super::report::{self, Status};
 use super::run::utc_now;
 use super::values::sanitize;
 use super::*;
-use crate::training::{EpochRecord, History, RunDir, TrainState};
+use sdf_slam::error::Result;
+use sdf_slam::training::{EpochRecord, History, RunDir, RunOptions, TrainState};
+use std::path::Path;
 use toml::Table;
 
 fn tmp(name: &str) -> PathBuf {
@@ -86,7 +88,7 @@ fn sdfcnn_sweep_plans_every_point_and_seed() {
     let r = &s.runs[6];
     assert_eq!(r.epochs, 2);
     assert_eq!(r.dir, dir.join("out").join(&r.name));
-    let cfg = crate::sdfcnn::SdfcnnTrainConfig::parse(&r.config, Path::new("run.toml"))
+    let cfg = sdf_slam::sdfcnn::SdfcnnTrainConfig::parse(&r.config, Path::new("run.toml"))
         .expect("run config parses");
     assert_eq!(
         (cfg.optimizer.lr, cfg.loss.lambda, cfg.seed, cfg.epochs),
@@ -380,7 +382,7 @@ lr = [0.001, 0.0003]
     assert_eq!(s.runs[5].name, "lr=0.0003_descriptor_weight=2_seed=1");
     assert_eq!(s.plots, ["val_desc_top1", "val_loss"]);
     let cfg =
-        crate::fpfdcnn::training::FpfdcnnTrainConfig::parse(&s.runs[5].config, Path::new("x"))
+        sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(&s.runs[5].config, Path::new("x"))
             .expect("run config parses");
     assert_eq!((cfg.lr, cfg.loss.descriptor_weight), (0.0003, 2.0));
     // SDFCNN's field names and metrics are not FPFDCNN's.
@@ -402,7 +404,7 @@ fn fake_run(run: &Run, epochs: usize, miou: &[f64], rms: f64) {
         keep: 0,
     };
     std::fs::create_dir_all(&run.dir).expect("run dir");
-    crate::io::write_atomic(run.dir.join("config.toml"), run.config.as_bytes()).expect("cfg");
+    sdf_slam::io::write_atomic(run.dir.join("config.toml"), run.config.as_bytes()).expect("cfg");
     let mut history = History::default();
     for e in 1..=epochs {
         let mut values = BTreeMap::new();

@@ -8,8 +8,8 @@ use super::values::{
     apply, duplicate, flatten, key_offsets, lookup, lookup_in, sanitize, short_labels, value_label,
 };
 use super::{At, Point, Run, Select, Sweep, Trainer, larger_is_better, trainer};
-use crate::error::{Error, Result};
-use crate::training::RunOptions;
+use sdf_slam::error::{Error, Result};
+use sdf_slam::training::RunOptions;
 use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -217,7 +217,7 @@ impl Sweep {
 /// Parses the sweep file (unknown keys are errors) and checks that it is a sweep.
 fn parse_file<'a>(path: &'a Path, text: &'a str) -> Result<(SweepFile, Locator<'a>)> {
     let file: SweepFile =
-        toml::from_str(text).map_err(|e| crate::camera::toml_error(path, text, e))?;
+        toml::from_str(text).map_err(|e| sdf_slam::camera::toml_error(path, text, e))?;
     let at = Locator {
         path,
         text,
@@ -237,12 +237,12 @@ fn parse_file<'a>(path: &'a Path, text: &'a str) -> Result<(SweepFile, Locator<'
 
 /// Reads the base config and parses it with its trainer.
 fn read_base(file: &SweepFile, at: &Locator<'_>) -> Result<Base> {
-    let base = crate::sdfcnn::data::resolve(&file.base, at.path);
-    let base_text = crate::io::read_text(&base)
+    let base = sdf_slam::sdfcnn::data::resolve(&file.base, at.path);
+    let base_text = sdf_slam::io::read_text(&base)
         .map_err(|e| at.err("base", format!("base = \"{}\": {e}", file.base.display())))?;
-    let base_table: Table =
-        toml::from_str(&base_text).map_err(|e| crate::camera::toml_error(&base, &base_text, e))?;
-    let model = crate::training::config_model(&base_text, &base)?;
+    let base_table: Table = toml::from_str(&base_text)
+        .map_err(|e| sdf_slam::camera::toml_error(&base, &base_text, e))?;
+    let model = sdf_slam::training::config_model(&base_text, &base)?;
     let trainer = trainer(&model).ok_or_else(|| {
         at.err(
             "base",

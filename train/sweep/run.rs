@@ -5,8 +5,8 @@
 use super::report;
 use super::values::{first_difference, lookup};
 use super::{Run, Sweep};
-use crate::error::{Error, Result};
-use crate::training::{RunDir, RunOptions};
+use sdf_slam::error::{Error, Result};
+use sdf_slam::training::{RunDir, RunOptions};
 use std::io::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -24,7 +24,7 @@ impl Sweep {
         if !cfg_path.is_file() {
             return Ok(());
         }
-        let text = crate::io::read_text(&cfg_path)?;
+        let text = sdf_slam::io::read_text(&cfg_path)?;
         let saved = (self.trainer.parse)(&text, &cfg_path)?;
         let strip = |v: &Value| {
             let mut v = v.clone();
@@ -179,7 +179,7 @@ pub(super) fn fmt_duration(secs: f64) -> String {
 pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
     let sweep = Sweep::load(path, text, opts)?;
     std::fs::create_dir_all(&sweep.out).map_err(|e| Error::io(&sweep.out, e))?;
-    crate::io::write_atomic(sweep.out.join("sweep.toml"), text.as_bytes())?;
+    sdf_slam::io::write_atomic(sweep.out.join("sweep.toml"), text.as_bytes())?;
     let n = sweep.runs.len();
     log(
         &sweep.out,
@@ -280,7 +280,7 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
             }
             Err(e) => {
                 let msg = e.to_string();
-                crate::io::write_atomic(&error_file, format!("{msg}\n").as_bytes())?;
+                sdf_slam::io::write_atomic(&error_file, format!("{msg}\n").as_bytes())?;
                 log(&sweep.out, &format!("{head}: FAILED: {msg}"));
                 failed.push((run.name.clone(), msg));
             }

@@ -59,7 +59,7 @@ struct Args {
 
 /// The Harris corners the checkpoint was trained on (its config's `[data.targets]`).
 fn targets(checkpoint: &std::path::Path) -> Result<HarrisConfig> {
-    let (_, cfg_path) = sdf_slam::nn::weights::resolve_checkpoint(checkpoint)?;
+    let (_, cfg_path) = sdf_slam::training::resolve_checkpoint(checkpoint)?;
     let text = sdf_slam::io::read_text(&cfg_path)?;
     let cfg = sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
     Ok(cfg.data.targets)

@@ -156,7 +156,7 @@ fn train(args: RunArgs) -> Result<()> {
 
 /// `train export`: half-precision weights and the training config, written atomically.
 fn export(args: &ExportArgs) -> Result<()> {
-    use sdf_slam::nn::weights::resolve_checkpoint;
+    use sdf_slam::training::resolve_checkpoint;
     let (weights, config) = resolve_checkpoint(&args.checkpoint)?;
     let text = sdf_slam::io::read_text(&config)?;
     std::fs::create_dir_all(&args.out)
@@ -182,7 +182,8 @@ fn export(args: &ExportArgs) -> Result<()> {
 /// with the first checkpoint's config (a comment lists the checkpoints averaged).
 fn average(args: &AverageArgs) -> Result<()> {
     use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
-    use sdf_slam::nn::weights::{average_modules, resolve_checkpoint, save_atomic};
+    use sdf_slam::nn::weights::{average_modules, save_atomic};
+    use sdf_slam::training::resolve_checkpoint;
     let mut models = Vec::new();
     let mut names = Vec::new();
     let mut first_config = None;

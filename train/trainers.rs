@@ -127,7 +127,7 @@ fn sdfcnn_check_data(text: &str, path: &Path) -> Result<()> {
 fn fpfdcnn_check_data(text: &str, path: &Path) -> Result<()> {
     let cfg = sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(text, path)?;
     if let Some(init) = &cfg.init {
-        sdf_slam::nn::weights::resolve_checkpoint(init)
+        sdf_slam::training::resolve_checkpoint(init)
             .map_err(|e| Error::invalid(path, format!("init: {e}")))?;
     }
     for s in &cfg.data.sequences {

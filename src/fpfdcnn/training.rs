@@ -194,7 +194,7 @@ fn new_model(
     }
     let optim = adam.init();
     if let (Some(init), false) = (&cfg.init, resuming) {
-        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
+        let (weights, config) = crate::training::resolve_checkpoint(init)?;
         model = crate::nn::weights::load_into(model, &weights, "FPFDCNN", &config)?;
         log(&format!("  initialised from {}", weights.display()));
     }

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use burn::module::{Module, ModuleMapper, Param};
 use burn::prelude::*;
 use burn::tensor::DType;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Copies every float parameter to f16 on the flex device: burn-ndarray has no f16
 /// tensors (casting there panics), so the copy works from a module on any backend.
@@ -112,43 +112,6 @@ pub fn check_finite_weights<M: Module>(module: &M, path: &Path) -> Result<()> {
             }
         ),
     ))
-}
-
-/// The weights file and training config of a checkpoint given as a `model.bpk`
-/// file, a checkpoint folder, or a run folder (its newest checkpoint).
-pub fn resolve_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
-    let dir = if path.is_file() {
-        path.parent().map(Path::to_path_buf).unwrap_or_default()
-    } else if path.join("model.bpk").is_file() {
-        path.to_path_buf()
-    } else if path.join("checkpoints/last.json").is_file() {
-        let run = crate::training::RunDir {
-            root: path.to_path_buf(),
-            keep: 0,
-        };
-        match run.latest()? {
-            Some(c) => c.dir,
-            None => return Err(Error::invalid(path, "run folder has no checkpoint")),
-        }
-    } else {
-        return Err(Error::invalid(
-            path,
-            "not a checkpoint: expected a model.bpk file, a folder holding one, or a training run folder",
-        ));
-    };
-    let model = if path.is_file() {
-        path.to_path_buf()
-    } else {
-        dir.join("model.bpk")
-    };
-    let config = dir.join("config.toml");
-    if !config.is_file() {
-        return Err(Error::invalid(
-            &dir,
-            "checkpoint has no config.toml beside its weights",
-        ));
-    }
-    Ok((model, config))
 }
 
 /// The element-wise mean of the float parameters of `models`, which must share one

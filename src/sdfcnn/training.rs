@@ -192,7 +192,7 @@ fn initialise(
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("safetensors"));
     if !is_safetensors {
-        let (weights, config) = crate::nn::weights::resolve_checkpoint(init)?;
+        let (weights, config) = crate::training::resolve_checkpoint(init)?;
         println!("initialised from {}", weights.display());
         return load_weights(model, &weights, &config);
     }

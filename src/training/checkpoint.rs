@@ -251,6 +251,43 @@ fn same_path(a: &str, b: &str) -> bool {
         )
 }
 
+/// The weights file and training config of a checkpoint given as a `model.bpk`
+/// file, a checkpoint folder, or a run folder (its newest checkpoint).
+pub fn resolve_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
+    let dir = if path.is_file() {
+        path.parent().map(Path::to_path_buf).unwrap_or_default()
+    } else if path.join("model.bpk").is_file() {
+        path.to_path_buf()
+    } else if path.join("checkpoints/last.json").is_file() {
+        let run = RunDir {
+            root: path.to_path_buf(),
+            keep: 0,
+        };
+        match run.latest()? {
+            Some(c) => c.dir,
+            None => return Err(Error::invalid(path, "run folder has no checkpoint")),
+        }
+    } else {
+        return Err(Error::invalid(
+            path,
+            "not a checkpoint: expected a model.bpk file, a folder holding one, or a training run folder",
+        ));
+    };
+    let model = if path.is_file() {
+        path.to_path_buf()
+    } else {
+        dir.join("model.bpk")
+    };
+    let config = dir.join("config.toml");
+    if !config.is_file() {
+        return Err(Error::invalid(
+            &dir,
+            "checkpoint has no config.toml beside its weights",
+        ));
+    }
+    Ok((model, config))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -8,7 +8,7 @@ pub mod history;
 
 /// Backends live with the networks ([`crate::nn::backend`]); re-exported for the trainers.
 pub use crate::nn::backend::{self, BackendKind};
-pub use checkpoint::{Checkpoint, RunDir, TrainState};
+pub use checkpoint::{Checkpoint, RunDir, TrainState, resolve_checkpoint};
 pub use history::{EpochRecord, History};
 
 use rand::SeedableRng;

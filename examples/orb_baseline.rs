@@ -8,12 +8,11 @@
 //! cargo run --release --example orb_baseline -- SEQUENCE [GAP] [DEGRADATION]
 //! e.g. `... -- /data/rgbd_dataset_freiburg1_desk2 3 motion:9` blurs frame i + gap.
 
-use nalgebra::Point2;
 use rand::SeedableRng;
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::photometric::Degradation;
 use sdf_slam::dataset::{FpConfig, TumSequence, fp_pair};
-use sdf_slam::features::bf_matcher::bf_match;
+use sdf_slam::features::bf_matcher::matched_pixels;
 use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
 use sdf_slam::metrics::PoseErrorSegment;
 use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
@@ -49,16 +48,7 @@ fn main() -> anyhow::Result<()> {
         let fa = detect_and_compute(&rgb_to_gray(&a.rgb), &orb)?;
         let fb = detect_and_compute(&gray_b, &orb)?;
         keypoints += fa.len();
-        let pairs: Vec<_> = bf_match(&fa.descriptors, &fb.descriptors, true)
-            .iter()
-            .map(|m| {
-                let (ka, kb) = (fa.keypoints[m.query], fb.keypoints[m.train]);
-                (
-                    Point2::new(ka.x as f64, ka.y as f64),
-                    Point2::new(kb.x as f64, kb.y as f64),
-                )
-            })
-            .collect();
+        let pairs: Vec<_> = matched_pixels(&fa, &fb);
         accs.push(matching_accuracy(
             &pairs,
             depth,

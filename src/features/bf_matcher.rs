@@ -1,7 +1,8 @@
 //! Brute-force Hamming matching of binary descriptors, OpenCV's
 //! `BFMatcher(NORM_HAMMING, crossCheck)`: the "BF matcher" of the paper's Table 6.
 
-use super::orb::Descriptor;
+use super::orb::{Descriptor, OrbFeatures};
+use nalgebra::Point2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -74,6 +75,21 @@ pub fn bf_match(
             query: i,
             train: j,
             distance: d,
+        })
+        .collect()
+}
+
+/// ORB keypoints of two images matched by cross-checked brute force ([`bf_match`]), as
+/// `(pixel in A, pixel in B)` in A's keypoint order.
+pub fn matched_pixels(a: &OrbFeatures, b: &OrbFeatures) -> Vec<(Point2<f64>, Point2<f64>)> {
+    bf_match(&a.descriptors, &b.descriptors, true)
+        .iter()
+        .map(|m| {
+            let (ka, kb) = (a.keypoints[m.query], b.keypoints[m.train]);
+            (
+                Point2::new(ka.x as f64, ka.y as f64),
+                Point2::new(kb.x as f64, kb.y as f64),
+            )
         })
         .collect()
 }

@@ -13,7 +13,7 @@ use crate::camera::Camera;
 use crate::dataset::photometric::Degradation;
 use crate::dataset::tum::{Frame, TumSequence};
 use crate::error::{Error, Result};
-use crate::features::bf_matcher::bf_match;
+use crate::features::bf_matcher::matched_pixels;
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, match_errors};
@@ -157,16 +157,7 @@ pub type PixelMatches = Vec<(Point2<f64>, Point2<f64>)>;
 pub fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMatches, usize)> {
     let fa = detect_and_compute(a, cfg)?;
     let fb = detect_and_compute(b, cfg)?;
-    let m = bf_match(&fa.descriptors, &fb.descriptors, true)
-        .iter()
-        .map(|m| {
-            let (ka, kb) = (fa.keypoints[m.query], fb.keypoints[m.train]);
-            (
-                Point2::new(ka.x as f64, ka.y as f64),
-                Point2::new(kb.x as f64, kb.y as f64),
-            )
-        })
-        .collect();
+    let m = matched_pixels(&fa, &fb);
     Ok((m, fa.len() + fb.len()))
 }
 

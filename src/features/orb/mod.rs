@@ -263,9 +263,8 @@ mod tests {
     use super::*;
     use crate::camera::Camera;
     use crate::dataset::TumSequence;
-    use crate::features::bf_matcher::bf_match;
+    use crate::features::bf_matcher::matched_pixels;
     use crate::metrics::matching::{CORRECT_MATCH_PX, frame_pair_accuracy, matching_accuracy};
-    use nalgebra::Point2;
 
     pub(super) const FIXTURE: &str = concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -383,16 +382,7 @@ mod tests {
         let cfg = OrbConfig::default();
         let fa = detect_and_compute(&rgb_to_gray(&a.rgb), &cfg).unwrap();
         let fb = detect_and_compute(&rgb_to_gray(&b.rgb), &cfg).unwrap();
-        let pairs: Vec<_> = bf_match(&fa.descriptors, &fb.descriptors, true)
-            .iter()
-            .map(|m| {
-                let (ka, kb) = (fa.keypoints[m.query], fb.keypoints[m.train]);
-                (
-                    Point2::new(ka.x as f64, ka.y as f64),
-                    Point2::new(kb.x as f64, kb.y as f64),
-                )
-            })
-            .collect();
+        let pairs: Vec<_> = matched_pixels(&fa, &fb);
         let acc = frame_pair_accuracy(&pairs, &a, &b, &cam).unwrap();
         // The same count with poses passed explicitly.
         let explicit = matching_accuracy(

@@ -144,7 +144,7 @@ fn main() -> anyhow::Result<()> {
     // `malloc=default` keeps glibc's defaults, to measure what `sdf_slam::malloc` gains.
     let tuned = args.get(5).map(String::as_str) != Some("malloc=default")
         && sdf_slam::malloc::tune_for_tensors();
-    let device = backend.device();
+    let device = backend.device()?;
     println!("backend {backend}, ops {conv:?}, malloc tuned {tuned}, {reps} timed runs each");
     for job in which.split(',') {
         let (name, ms) = match job {

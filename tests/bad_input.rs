@@ -139,7 +139,7 @@ impl ModuleMapper for Poison {
 fn nan_fpfdcnn(dir: &Path) {
     let ckpt = dir.join("nan");
     std::fs::create_dir_all(&ckpt).unwrap();
-    let device = BackendKind::Ndarray.device();
+    let device = BackendKind::Ndarray.device().expect("ndarray");
     let model = FpfdcnnConfig::new().init(&device).unwrap().map(&mut Poison);
     model.save_file(ckpt.join("model.bpk")).unwrap();
     std::fs::copy(
@@ -151,7 +151,7 @@ fn nan_fpfdcnn(dir: &Path) {
 
 /// A tiny SDFCNN checkpoint whose weights are NaN, in half precision as bundled.
 fn nan_sdfcnn(dir: &Path) {
-    let device = BackendKind::Ndarray.device();
+    let device = BackendKind::Ndarray.device().expect("ndarray");
     let model = common::tiny_sdfcnn_config().init(&device).unwrap();
     common::write_tiny_sdfcnn(&dir.join("nan"), model.map(&mut Poison));
 }
@@ -175,6 +175,24 @@ fn smoke_config(name: &str, from: &str, to: &str) -> String {
     );
     assert!(text.contains(from), "{name} has no '{from}'");
     text.replace(from, to)
+}
+
+/// A GPU backend this build lacks (`cuda` when built with `wgpu`).
+fn gpu_left_out() -> &'static str {
+    if cfg!(feature = "wgpu") {
+        "cuda"
+    } else {
+        "wgpu"
+    }
+}
+
+/// The error's hint for [`gpu_left_out`].
+fn not_compiled() -> &'static str {
+    if cfg!(feature = "wgpu") {
+        "--features cuda"
+    } else {
+        "--features wgpu"
+    }
 }
 
 fn corpus() -> Vec<Case> {
@@ -365,6 +383,14 @@ fn corpus() -> Vec<Case> {
         case("missing training config", "train", &["--config", "nofile.toml"], &["nofile.toml"]),
         case("sweep without out", "train", &["--config", "sweep.toml"], &["sweep.toml", "out"])
             .file("sweep.toml", "model = \"sweep\"\nbase = \"nofile.toml\"\n"),
+        // Backends left out of this build (GPU features off): an error naming the feature,
+        // before any data is read or any run folder made.
+        case("training backend not compiled in", "train", &["--config", "t.toml", "--out", "out"], &[not_compiled()])
+            .file("t.toml", &tiny_training_config("backend = \"ndarray\"", &format!("backend = \"{}\"", gpu_left_out()))),
+        case("SDFCNN training backend not compiled in", "train", &["--config", "t.toml", "--out", "out", "--backend", gpu_left_out()], &[not_compiled()])
+            .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "epochs = 60", "epochs = 1")),
+        case("SLAM backend not compiled in", "slam", &["--sequence", fx.as_str(), "--backend", gpu_left_out(), "--out", "out"], &[not_compiled()]),
+        case("benchmark backend not compiled in", "bench", &["--backend", gpu_left_out(), "--runs", "1", "--warmup", "0", "--case", "fpfdcnn-infer"], &[not_compiled()]),
         // Benchmark arguments.
         case("no timed runs", "bench", &["--runs", "0"], &["--runs", "1..=1000"]),
         case("a billion runs", "bench", &["--runs", "1000000000"], &["--runs"]),

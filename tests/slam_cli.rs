@@ -267,7 +267,7 @@ fn tiny_default_sequence(root: &Path, frames: usize) -> PathBuf {
 
 /// A randomly initialised tiny SDFCNN checkpoint in half precision, as bundled.
 fn tiny_sdfcnn(dir: &Path) {
-    let device = BackendKind::Ndarray.device();
+    let device = BackendKind::Ndarray.device().expect("ndarray");
     let model = common::tiny_sdfcnn_config().init(&device).unwrap();
     common::write_tiny_sdfcnn(dir, sdf_slam::nn::seeded_init(model, 3));
 }
@@ -275,7 +275,7 @@ fn tiny_sdfcnn(dir: &Path) {
 /// A randomly initialised FPFDCNN checkpoint (Table 12) with the smoke-run config.
 fn random_fpfdcnn(dir: &Path) {
     std::fs::create_dir_all(dir).unwrap();
-    let device = BackendKind::Ndarray.device();
+    let device = BackendKind::Ndarray.device().expect("ndarray");
     let model = sdf_slam::nn::seeded_init(FpfdcnnConfig::new().init(&device).unwrap(), 4);
     model.save_file(dir.join("model.bpk")).unwrap();
     std::fs::copy(

@@ -75,7 +75,7 @@ fn checkpoint() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = tmp_dir("ckpt");
-        let device = BackendKind::Ndarray.device();
+        let device = BackendKind::Ndarray.device().expect("ndarray");
         let model: Sdfcnn =
             sdf_slam::nn::seeded_init(common::tiny_sdfcnn_config().init(&device).unwrap(), 7);
         let mut m = ConstantDepth { bias: 0, weight: 0 };
@@ -330,7 +330,7 @@ fn sdfcnn_checkpoints_that_do_not_fit_are_clear_errors() {
     assert!(e.contains("model.bpk"), "{e}");
     // A network that does not predict the map's 40 classes.
     let cfg13 = common::tiny_sdfcnn_config().with_num_classes(13);
-    let device = BackendKind::Ndarray.device();
+    let device = BackendKind::Ndarray.device().expect("ndarray");
     let p = SdfcnnPredictor::from_model(cfg13.init(&device).unwrap(), cfg13, device);
     let e = SdfcnnSource::new(p).unwrap_err().to_string();
     assert!(e.contains("13 classes") && e.contains("40"), "{e}");

@@ -238,7 +238,7 @@ fn fpfdcnn_summary(
     [h, w]: [usize; 2],
     backend: BackendKind,
 ) -> anyhow::Result<(usize, usize)> {
-    let device = backend.device();
+    let device = backend.device()?;
     let model = FpfdcnnConfig::new()
         .init(&device)
         .context("building FPFDCNN")?;
@@ -255,7 +255,7 @@ fn sdfcnn_summary(
     [h, w]: [usize; 2],
     backend: BackendKind,
 ) -> anyhow::Result<(usize, usize)> {
-    let device = backend.device();
+    let device = backend.device()?;
     let model = SdfcnnConfig::new()
         .init(&device)
         .context("building SDFCNN")?;

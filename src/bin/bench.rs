@@ -1,4 +1,4 @@
-//! `bench`: CPU timings of the two networks at their real sizes, next to the reference figures
+//! `bench`: timings of the two networks at their real sizes, next to the reference figures
 //! measured before (PyTorch CPU, burn-flex, burn-ndarray).
 //!
 //! ```text
@@ -35,7 +35,9 @@ use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
-#[command(about = "Time SDFCNN and FPFDCNN inference and training steps on the CPU backends")]
+#[command(
+    about = "Time SDFCNN and FPFDCNN inference and training steps on the CPU (and GPU) backends"
+)]
 struct Cli {
     /// Backends to time (repeat the flag; default both).
     #[arg(long, value_enum)]
@@ -164,7 +166,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
     };
     match case {
         Case::SdfcnnInfer => {
-            let d = backend.device();
+            let d = backend.device()?;
             let model = SdfcnnConfig::new().init(&d)?;
             let x = random([1, 3, 480, 640], &mut rng, &d);
             time(runs, warmup, || {
@@ -175,7 +177,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
             })
         }
         Case::SdfcnnTrain => {
-            let d = backend.autodiff_device();
+            let d = backend.autodiff_device()?;
             let mut model = Some(SdfcnnConfig::new().init(&d)?);
             let mut optim = sgd();
             let loss = SdfcnnLossConfig::default();
@@ -193,11 +195,13 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
                 let grads = GradientsParams::from_grads(l.total.backward(), &m);
                 let m = optim.step(0.01, m, grads);
                 model = Some(m);
+                // A GPU runs the step asynchronously: wait for it.
+                d.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
                 Ok(())
             })
         }
         Case::FpfdcnnInfer => {
-            let d = backend.device();
+            let d = backend.device()?;
             let model = FpfdcnnConfig::new().init(&d)?;
             let x = random([1, 1, 480, 640], &mut rng, &d);
             let points: Vec<(usize, usize)> = (0..500)
@@ -213,7 +217,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
         }
         Case::FpfdcnnDetect => {
             use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
-            let d = backend.device();
+            let d = backend.device()?;
             let model = FpfdcnnConfig::new().init(&d)?;
             let detector = FpfdcnnDetector::new(model, d, DetectorConfig::default());
             let gray = image::GrayImage::from_fn(640, 480, |_, _| {
@@ -226,7 +230,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
             })
         }
         Case::FpfdcnnTrain => {
-            let d = backend.autodiff_device();
+            let d = backend.autodiff_device()?;
             let mut model = Some(FpfdcnnConfig::new().init(&d)?);
             let mut optim = sgd();
             let x = random([4, 1, 240, 320], &mut rng, &d);
@@ -236,6 +240,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
                 let loss = out.prob.mean() + out.descriptors.mean();
                 let grads = GradientsParams::from_grads(loss.backward(), &m);
                 model = Some(optim.step(0.01, m, grads));
+                d.sync().map_err(|e| anyhow::anyhow!("{e:?}"))?;
                 Ok(())
             })
         }
@@ -249,6 +254,10 @@ fn main() -> Result<()> {
     } else {
         cli.backend.clone()
     };
+    // A backend not compiled in, or without a device, fails before any case runs.
+    for b in &backends {
+        b.check()?;
+    }
     let cases: Vec<Case> = if cli.case.is_empty() {
         Case::ALL.to_vec()
     } else {

@@ -211,6 +211,8 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
 fn matching(a: MatchingArgs) -> Result<()> {
     use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown};
     use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
+    // A backend not compiled in, or without a device, fails before any data is read.
+    a.backend.check()?;
     anyhow::ensure!(
         a.ratio > 0.0 && a.ratio.is_finite(),
         "--ratio must be a positive number (1 turns the test off), got {}",

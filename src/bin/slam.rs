@@ -8,7 +8,7 @@
 //! ```text
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
 //!      [--features fpfdcnn|orb] [--fpfdcnn CKPT] [--labels gt|sdfcnn|none] [--sdfcnn CKPT]
-//!      [--config configs/slam/default.toml] [--out DIR] [--backend ndarray|flex]
+//!      [--config configs/slam/default.toml] [--out DIR] [--backend ndarray|flex|wgpu|cuda]
 //!      [--single-thread] [--max-frames N]
 //! ```
 

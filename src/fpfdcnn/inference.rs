@@ -221,7 +221,7 @@ impl FpfdcnnDetector {
         let (weights, cfg_path) = resolve_checkpoint(checkpoint)?;
         let text = crate::io::read_text(&cfg_path)?;
         let train = FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
-        let device = backend.device();
+        let device = backend.device()?;
         let model = train
             .network()
             .init(&device)

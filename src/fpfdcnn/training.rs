@@ -96,6 +96,12 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     if let Some(o) = &opts.out {
         cfg.out = o.clone();
     }
+    // A backend not compiled in, without a device, or not trusted to train fails before
+    // anything is read or written.
+    let device = cfg.backend.autodiff_device()?;
+    cfg.backend
+        .check_training("FPFDCNN")
+        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
     let saved_text = toml::to_string_pretty(&cfg)?;
     let mut run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
     run.keep = cfg.keep_checkpoints;
@@ -121,7 +127,6 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         cfg.height
     ));
 
-    let device = cfg.backend.autodiff_device();
     device.seed(cfg.seed);
     let (mut model, mut optim) = new_model(&cfg, &device, opts.resume, &log)?;
     let mut state = TrainState::default();
@@ -352,7 +357,7 @@ fn write_history(run: &RunDir, state: &TrainState) -> Result<()> {
 
 /// Validation loss terms and descriptor top-1 accuracy, without augmentation.
 fn validate(model: &Fpfdcnn, val: &FpDataset, cfg: &FpfdcnnTrainConfig) -> Result<LossSums> {
-    let device = cfg.backend.device();
+    let device = cfg.backend.device()?;
     let model = model.clone().to_device(&device);
     let n = val.pairs.len();
     let keep = if cfg.val_pairs == 0 {

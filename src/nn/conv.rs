@@ -36,6 +36,8 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use burn::tensor::ops::{ConvOptions, PadMode};
 
+use super::backend::is_cpu;
+
 /// Which implementation [`conv2d`] and [`crate::nn::max_pool2d`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OpImpl {
@@ -45,8 +47,12 @@ pub enum OpImpl {
     ///   backward there is 10–600× slower.
     /// * ndarray without autodiff (inference): the composite ops except 3×3 depthwise
     ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
-    /// * other backends (flex): only 1×1 stride-1 convolutions (a plain matrix product, 3–5×
-    ///   faster forward + backward on flex too) and, without autodiff, the max pool (2×).
+    /// * flex: only 1×1 stride-1 convolutions (a plain matrix product, 3–5× faster forward +
+    ///   backward on flex too) and, without autodiff, the max pool (2×).
+    /// * the GPU backends (wgpu, cuda): 1×1 convolutions as matrix products too, Burn's own
+    ///   kernels otherwise. Burn 0.22.1's wgpu 1×1 convolution returns a tensor that later
+    ///   in-place element-wise ops read wrongly (SDFCNN's one-channel depth head gave an L1
+    ///   loss of 1.06 where the CPU gives 2.00; `tests/gpu_backends.rs` checks the losses).
     #[default]
     Auto,
     /// Always Burn's own kernels (`Conv2d::forward`, `MaxPool2d::forward`).
@@ -131,7 +137,7 @@ pub fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
 /// [`OpImpl`].
 pub fn pool_uses_composite(device: &Device) -> bool {
     match op_impl() {
-        OpImpl::Auto => is_ndarray(device) || !device.is_autodiff(),
+        OpImpl::Auto => is_cpu(device) && (is_ndarray(device) || !device.is_autodiff()),
         OpImpl::Burn => false,
         OpImpl::Composite => true,
     }

@@ -242,7 +242,7 @@ impl SdfcnnPredictor {
         let (model_path, config_path) = locate_checkpoint(path)?;
         let network = read_network_section(&config_path)?;
         let config = network.to_config();
-        let device = backend.device();
+        let device = backend.device()?;
         let model = config
             .init(&device)
             .map_err(|e| Error::invalid(&config_path, e.to_string()))?;
@@ -399,7 +399,7 @@ mod tests {
             .with_inner_size([32, 48])
             .with_decoder_dim(16)
             .with_crp_stages(1);
-        let device = BackendKind::Ndarray.device();
+        let device = BackendKind::Ndarray.device().expect("ndarray");
         let model = crate::nn::seeded_init(config.init(&device).expect("valid"), 5);
         model
             .clone()

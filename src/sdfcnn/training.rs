@@ -58,6 +58,12 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let cfg = SdfcnnTrainConfig::parse(config_text, config_path)?;
     let epochs = opts.epochs.unwrap_or(cfg.epochs);
     let backend = opts.backend.unwrap_or(cfg.backend);
+    // A backend not compiled in, without a device, or not trusted to train fails before any
+    // data is read.
+    let device = backend.autodiff_device()?;
+    backend
+        .check_training("SDFCNN")
+        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
     let out = opts.out.clone().unwrap_or_else(|| cfg.out.clone());
     let sources = |list: &[DataSource]| -> Vec<DataSource> {
         list.iter().map(|s| s.resolved(config_path)).collect()
@@ -81,7 +87,6 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
 
     let mut run = RunDir::prepare(&out, config_text, opts.resume)?;
     run.keep = cfg.keep_checkpoints;
-    let device = backend.autodiff_device();
     let net = cfg.network.to_config();
     let model = net
         .init(&device)

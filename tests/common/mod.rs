@@ -43,8 +43,12 @@ pub fn tiny_sdfcnn_config() -> SdfcnnConfig {
 pub fn write_tiny_sdfcnn(dir: &Path, model: Sdfcnn) {
     std::fs::create_dir_all(dir).unwrap();
     // (f16 tensors live on flex: ndarray has none.)
-    SdfcnnPredictor::from_model(model, tiny_sdfcnn_config(), BackendKind::Ndarray.device())
-        .save_f16(&dir.join("model.bpk"))
-        .unwrap();
+    SdfcnnPredictor::from_model(
+        model,
+        tiny_sdfcnn_config(),
+        BackendKind::Ndarray.device().expect("ndarray"),
+    )
+    .save_f16(&dir.join("model.bpk"))
+    .unwrap();
     std::fs::write(dir.join("config.toml"), TINY_SDFCNN_TOML).unwrap();
 }

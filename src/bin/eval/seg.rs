@@ -84,6 +84,7 @@ fn open_data(a: &SegArgs) -> Result<Set> {
 }
 
 pub fn run(a: &SegArgs) -> Result<()> {
+    a.backend.check()?;
     let data = open_data(a)?;
     let fx = data.fx();
     let predictor = SdfcnnPredictor::load(&a.checkpoint, a.backend)?;

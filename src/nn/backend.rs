@@ -35,7 +35,7 @@ pub enum BackendError {
     #[error(
         "{network} training on `{backend}` is refused: with Burn 0.22.1 the gradients there \
          differ from the CPU's (README, *GPU backends*; tests/gpu_backends.rs); train on flex \
-         or ndarray. Inference on `{backend}` is checked and allowed"
+         or ndarray. Inference on `{backend}` is allowed (checked on wgpu)"
     )]
     NoTraining {
         /// The backend asked for.
@@ -139,18 +139,58 @@ mod gpu {
     use super::{BackendError, BackendKind};
     use burn::prelude::Device;
 
-    /// The wgpu device, started once per process: wgpu's runtime cannot be initialised twice.
+    /// Starts a GPU runtime once per process (wgpu's cannot be initialised twice) and keeps
+    /// its device, or the driver's answer when there is none or it cannot compute.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn once(
+        cell: &'static std::sync::OnceLock<Result<Device, String>>,
+        backend: BackendKind,
+        start: impl FnOnce() -> Result<Device, String>,
+    ) -> Result<Device, BackendError> {
+        cell.get_or_init(|| start().and_then(|d| probe(&d).map(|()| d)))
+            .clone()
+            .map_err(|reason| BackendError::NoDevice { backend, reason })
+    }
+
+    /// Runs a reduction on `device`. An adapter can start and still lack what Burn's kernels
+    /// need (without a Vulkan driver wgpu took a GL adapter here whose first sum panicked in
+    /// a worker thread: no float atomics); that becomes an error, its panic message kept out
+    /// of the output.
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn probe(device: &Device) -> Result<(), String> {
+        use std::panic::{AssertUnwindSafe, catch_unwind, set_hook, take_hook};
+        let hook = take_hook();
+        set_hook(Box::new(|_| {}));
+        let run = catch_unwind(AssertUnwindSafe(|| {
+            burn::tensor::Tensor::<1>::ones([1 << 20], device)
+                .sum()
+                .try_into_scalar::<f32>()
+        }));
+        set_hook(hook);
+        // The driver's message in one line (Burn's spans several).
+        let one_line = |s: String| {
+            let parts: Vec<&str> = s.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+            parts.join(" ").chars().take(400).collect::<String>()
+        };
+        match run {
+            Ok(Ok(v)) if v == (1 << 20) as f32 => Ok(()),
+            Ok(Ok(v)) => Err(format!("a test sum gave {v} instead of {}", 1 << 20)),
+            Ok(Err(e)) => Err(one_line(format!("{e:?}"))),
+            Err(p) => Err(p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .map_or_else(|| "the runtime failed to start".into(), one_line)),
+        }
+    }
+
+    /// The first high-performance adapter wgpu finds.
     #[cfg(feature = "wgpu")]
     pub fn wgpu() -> Result<Device, BackendError> {
-        use std::sync::OnceLock;
-        static DEVICE: OnceLock<Result<Device, String>> = OnceLock::new();
-        DEVICE
-            .get_or_init(|| Device::wgpu_options().init().map_err(|e| e.to_string()))
-            .clone()
-            .map_err(|reason| BackendError::NoDevice {
-                backend: BackendKind::Wgpu,
-                reason,
-            })
+        static DEVICE: std::sync::OnceLock<Result<Device, String>> = std::sync::OnceLock::new();
+        once(&DEVICE, BackendKind::Wgpu, || {
+            Device::wgpu_options().init().map_err(|e| e.to_string())
+        })
     }
 
     #[cfg(not(feature = "wgpu"))]
@@ -158,33 +198,13 @@ mod gpu {
         Err(BackendError::NotCompiled(BackendKind::Wgpu))
     }
 
-    /// The first CUDA device. CubeCL opens it lazily and panics without a driver, so the
-    /// driver is probed first (a tiny tensor round trip, its panic caught). Not compiled in
-    /// this project's environment (README, *GPU backends*: the feature's build downloads LLVM).
+    /// The first CUDA device (CubeCL opens it lazily: [`probe`] finds a missing driver). Not
+    /// compiled in this project's environment (README, *GPU backends*: the feature's build
+    /// downloads LLVM).
     #[cfg(feature = "cuda")]
     pub fn cuda() -> Result<Device, BackendError> {
-        use std::sync::OnceLock;
-        static DEVICE: OnceLock<Result<Device, String>> = OnceLock::new();
-        DEVICE
-            .get_or_init(|| {
-                let device = Device::cuda(0);
-                let probe = device.clone();
-                std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                    burn::tensor::Tensor::<1>::zeros([1], &probe).into_data()
-                }))
-                .map(|_| device)
-                .map_err(|p| {
-                    p.downcast_ref::<String>()
-                        .cloned()
-                        .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
-                        .unwrap_or_else(|| "the CUDA runtime failed to start".into())
-                })
-            })
-            .clone()
-            .map_err(|reason| BackendError::NoDevice {
-                backend: BackendKind::Cuda,
-                reason,
-            })
+        static DEVICE: std::sync::OnceLock<Result<Device, String>> = std::sync::OnceLock::new();
+        once(&DEVICE, BackendKind::Cuda, || Ok(Device::cuda(0)))
     }
 
     #[cfg(not(feature = "cuda"))]

@@ -333,7 +333,9 @@ fn main() -> Result<()> {
     if cli.single_thread {
         config.system.threads = false;
     }
-    // The networks first: weights that do not fit fail before anything else happens.
+    // The backend first, even when no network runs (never another backend than asked);
+    // then the networks: weights that do not fit fail before anything else happens.
+    cli.backend.check()?;
     let (features, fpfdcnn_ckpt, keypoints) = keypoint_source(&cli, &config)?;
     let (labels, sdfcnn_ckpt, sdfcnn) = sdfcnn_source(&cli)?;
     let (sequence_path, sequence) = open_sequence(&cli)?;

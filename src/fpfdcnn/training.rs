@@ -98,10 +98,10 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     }
     // A backend not compiled in, without a device, or not trusted to train fails before
     // anything is read or written.
-    let device = cfg.backend.autodiff_device()?;
     cfg.backend
         .check_training("FPFDCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
+    let device = cfg.backend.autodiff_device()?;
     let saved_text = toml::to_string_pretty(&cfg)?;
     let mut run = RunDir::prepare(&cfg.out, &saved_text, opts.resume)?;
     run.keep = cfg.keep_checkpoints;

@@ -98,8 +98,11 @@ impl BackendKind {
     /// 0.22.1's wgpu the SDFCNN input gradient of a 32x48 check differs from the CPU's by up
     /// to 62 % of its largest value, and an FPFDCNN epoch of `configs/train/fpfdcnn_tiny.toml`
     /// ends at a training loss of 7.41 where flex gives 7.19 (README, *GPU backends*).
+    /// Needs no device: a backend the build lacks gets [`BackendError::NotCompiled`].
     pub fn check_training(self, network: &'static str) -> Result<(), BackendError> {
-        if self.is_gpu() {
+        if !self.is_compiled() {
+            Err(BackendError::NotCompiled(self))
+        } else if self.is_gpu() {
             Err(BackendError::NoTraining {
                 backend: self,
                 network,
@@ -241,11 +244,12 @@ mod tests {
             assert_eq!(refused, b.is_gpu(), "{b}");
         }
         let e = BackendKind::Wgpu.check_training("SDFCNN").unwrap_err();
-        assert!(
-            e.to_string()
-                .starts_with("SDFCNN training on `wgpu` is refused"),
-            "{e}"
-        );
+        let want = if BackendKind::Wgpu.is_compiled() {
+            "SDFCNN training on `wgpu` is refused"
+        } else {
+            "backend `wgpu` is not compiled"
+        };
+        assert!(e.to_string().starts_with(want), "{e}");
     }
 
     #[test]

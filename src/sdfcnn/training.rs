@@ -60,10 +60,10 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let backend = opts.backend.unwrap_or(cfg.backend);
     // A backend not compiled in, without a device, or not trusted to train fails before any
     // data is read.
-    let device = backend.autodiff_device()?;
     backend
         .check_training("SDFCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
+    let device = backend.autodiff_device()?;
     let out = opts.out.clone().unwrap_or_else(|| cfg.out.clone());
     let sources = |list: &[DataSource]| -> Vec<DataSource> {
         list.iter().map(|s| s.resolved(config_path)).collect()

@@ -394,6 +394,8 @@ fn corpus() -> Vec<Case> {
         // Benchmark arguments.
         case("no timed runs", "bench", &["--runs", "0"], &["--runs", "1..=1000"]),
         case("a billion runs", "bench", &["--runs", "1000000000"], &["--runs"]),
+        case("PyTorch interpreter missing", "bench", &["--torch", "no/such/python", "--runs", "1", "--case", "fpfdcnn-infer"], &["cannot run no/such/python"]),
+        case("PyTorch script missing", "bench", &["--torch", "python3", "--torch-script", "none.py", "--case", "fpfdcnn-infer"], &["none.py", "does not exist"]),
         // Synthesis configs.
         case("synth 1e12 frames", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "frames must be at most"])
             .file("s.toml", "frames = 1000000000000\n"),

@@ -1,8 +1,9 @@
-//! `bench`: timings of the two networks at their real sizes, next to the reference figures
-//! measured before (PyTorch CPU, burn-flex, burn-ndarray).
+//! `bench`: timings of the two networks at their real sizes on Burn's backends, and with
+//! `--torch` beside PyTorch's CPU times for the same networks, measured in the same run.
 //!
 //! ```text
 //! bench [--backend ndarray --backend flex] [--runs 5] [--warmup 2] [--case sdfcnn-infer ...]
+//!       [--torch PYTHON [--torch-threads N] [--torch-script scripts/bench_torch.py]]
 //! ```
 //!
 //! Cases (median of `--runs` after `--warmup` untimed runs; each waits for its results):
@@ -11,7 +12,9 @@
 //! * `sdfcnn-train`: one SGD step at batch 4, 240×320: forward to the judge layer, eq. 21 loss
 //!   (λ 0.4, berHu), backward, optimizer update;
 //! * `fpfdcnn-infer`: FPFDCNN forward of one 480×640 grey image and descriptors at 500 keypoints
-//!   (`Fpfdcnn::forward` + `descriptors_at`, Table 12 FD_FP);
+//!   (Table 12 FD_FP) the way the detector runs it: on CPU backends the packed NHWC network
+//!   (`PackedFpfdcnn`), on GPUs Burn's;
+//! * `fpfdcnn-infer-burn`: the same with Burn's kernels (`Fpfdcnn::forward` + `descriptors_at`);
 //! * `fpfdcnn-detect`: the whole default detector on one 480×640 grey image (`FpfdcnnDetector::
 //!   detect` with `DetectorConfig::default()`: the FP map averaged over four cell-grid
 //!   placements, so four network passes, smoothing, NMS, top 500, descriptors); no reference;
@@ -21,17 +24,24 @@
 //! Peak memory is the process's VmHWM from /proc/self/status, reset before each case by
 //! writing 5 to /proc/self/clear_refs (so it includes the memory already held then, shown as
 //! "base").
+//!
+//! `--torch PYTHON` runs `scripts/bench_torch.py` (PyTorch definitions of both networks, shape
+//! for shape as ours) with that interpreter before each case's own runs, with as many threads,
+//! and prints each backend's time as a ratio of PyTorch's measured in the same run: absolute
+//! times move with the machine's load from one day (or hour) to the next, ratios much less.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use burn::optim::momentum::MomentumConfig;
 use burn::optim::{GradientsParams, SgdConfig};
 use burn::prelude::*;
 use clap::{Parser, ValueEnum};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::nn::BackendKind;
+use sdf_slam::fpfdcnn::{FpfdcnnConfig, PackedFpfdcnn};
+use sdf_slam::nn::{BackendKind, sample_bilinear_at, trainable_params};
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
@@ -51,11 +61,23 @@ struct Cli {
     /// Untimed runs first, 0-1000.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(0..=1000))]
     warmup: u16,
+    /// A Python interpreter with PyTorch: run scripts/bench_torch.py's version of each case
+    /// (all but fpfdcnn-detect) just before ours and print the ratios.
+    #[arg(long, value_name = "PYTHON")]
+    torch: Option<PathBuf>,
+    /// The PyTorch script [default: scripts/bench_torch.py here, else in the source tree].
+    #[arg(long, value_name = "PATH", requires = "torch")]
+    torch_script: Option<PathBuf>,
+    /// PyTorch's intra-op threads [default: the hardware threads Burn's CPU backends use].
+    #[arg(long, value_name = "N", requires = "torch",
+          value_parser = clap::value_parser!(u16).range(1..=1024))]
+    torch_threads: Option<u16>,
 }
 
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq)]
 enum Case {
     FpfdcnnInfer,
+    FpfdcnnInferBurn,
     FpfdcnnDetect,
     SdfcnnInfer,
     FpfdcnnTrain,
@@ -63,8 +85,9 @@ enum Case {
 }
 
 impl Case {
-    const ALL: [Case; 5] = [
+    const ALL: [Case; 6] = [
         Case::FpfdcnnInfer,
+        Case::FpfdcnnInferBurn,
         Case::FpfdcnnDetect,
         Case::SdfcnnInfer,
         Case::FpfdcnnTrain,
@@ -74,6 +97,7 @@ impl Case {
     fn label(self) -> &'static str {
         match self {
             Case::FpfdcnnInfer => "FPFDCNN inference 480x640 + 500 descriptors",
+            Case::FpfdcnnInferBurn => "FPFDCNN inference as above, Burn's kernels",
             Case::FpfdcnnDetect => "FPFDCNN detector 480x640, 4 grid placements, top 500",
             Case::SdfcnnInfer => "SDFCNN inference 640x480",
             Case::FpfdcnnTrain => "FPFDCNN train step, batch 4, 240x320 (stand-in loss)",
@@ -81,16 +105,27 @@ impl Case {
         }
     }
 
-    /// Reference milliseconds: PyTorch CPU, burn-flex, burn-ndarray (None: panicked); None
-    /// for a case without reference figures.
-    fn reference(self) -> Option<(f64, f64, Option<f64>)> {
+    /// The case's name in scripts/bench_torch.py (`None`: no PyTorch version).
+    fn torch_name(self) -> Option<&'static str> {
         match self {
-            Case::FpfdcnnInfer => Some((46.0, 171.0, Some(303.0))),
+            Case::FpfdcnnInfer | Case::FpfdcnnInferBurn => Some("fpfdcnn-infer"),
             Case::FpfdcnnDetect => None,
-            Case::SdfcnnInfer => Some((254.0, 377.0, Some(692.0))),
-            Case::FpfdcnnTrain => Some((459.0, 1418.0, None)),
-            Case::SdfcnnTrain => Some((1099.0, 3272.0, None)),
+            Case::SdfcnnInfer => Some("sdfcnn-infer"),
+            Case::FpfdcnnTrain => Some("fpfdcnn-train"),
+            Case::SdfcnnTrain => Some("sdfcnn-train"),
         }
+    }
+
+    /// Trainable parameters of the case's network (the PyTorch definition must agree; BN
+    /// running statistics are not counted on either side).
+    fn parameters(self) -> Result<usize> {
+        let d = BackendKind::Flex.device()?;
+        Ok(match self {
+            Case::SdfcnnInfer | Case::SdfcnnTrain => {
+                trainable_params(&SdfcnnConfig::new().init(&d)?)
+            }
+            _ => trainable_params(&FpfdcnnConfig::new().init(&d)?),
+        })
     }
 }
 
@@ -100,6 +135,152 @@ struct Measured {
     min_ms: f64,
     peak_mb: f64,
     base_mb: f64,
+}
+
+/// scripts/bench_torch.py run with a given interpreter.
+struct Torch {
+    python: PathBuf,
+    script: PathBuf,
+    threads: usize,
+}
+
+/// One PyTorch measurement (the script's JSON line).
+struct TorchMeasured {
+    median_ms: f64,
+    min_ms: f64,
+    version: String,
+    capability: String,
+}
+
+impl Torch {
+    fn new(cli: &Cli, python: &Path, threads: usize) -> Result<Self> {
+        let script = match &cli.torch_script {
+            Some(p) => p.clone(),
+            None => {
+                let here = PathBuf::from("scripts/bench_torch.py");
+                if here.is_file() {
+                    here
+                } else {
+                    Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/bench_torch.py")
+                }
+            }
+        };
+        anyhow::ensure!(
+            script.is_file(),
+            "the PyTorch script {} does not exist (--torch-script)",
+            script.display()
+        );
+        let torch = Self {
+            python: python.to_path_buf(),
+            script,
+            threads: cli.torch_threads.map_or(threads, usize::from),
+        };
+        // Fails here, before any case, when the interpreter or PyTorch is missing.
+        torch
+            .command()
+            .arg("--help")
+            .stdout(Stdio::null())
+            .status()
+            .map_or_else(
+                |e| {
+                    Err(anyhow::anyhow!(
+                        "cannot run {}: {e}",
+                        torch.python.display()
+                    ))
+                },
+                |s| {
+                    anyhow::ensure!(
+                        s.success(),
+                        "{} {} does not start ({s}); its message is above",
+                        torch.python.display(),
+                        torch.script.display()
+                    );
+                    Ok(())
+                },
+            )?;
+        Ok(torch)
+    }
+
+    fn command(&self) -> Command {
+        let mut c = Command::new(&self.python);
+        c.arg(&self.script).stderr(Stdio::inherit());
+        c
+    }
+
+    fn run(&self, case: &str, runs: u16, warmup: u16, parameters: usize) -> Result<TorchMeasured> {
+        let out = self
+            .command()
+            .args(["--case", case, "--runs", &runs.to_string()])
+            .args(["--warmup", &warmup.to_string()])
+            .args(["--threads", &self.threads.to_string()])
+            .output()
+            .with_context(|| format!("running {}", self.python.display()))?;
+        anyhow::ensure!(
+            out.status.success(),
+            "{} --case {case} failed ({}); its message is above",
+            self.script.display(),
+            out.status
+        );
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let line = stdout.lines().last().unwrap_or_default();
+        let v: serde_json::Value = serde_json::from_str(line).with_context(|| {
+            format!(
+                "{} --case {case} printed {line:?}, not JSON",
+                self.script.display()
+            )
+        })?;
+        let number = |key: &str| {
+            v[key].as_f64().filter(|x| x.is_finite()).with_context(|| {
+                format!(
+                    "{} --case {case}: no number `{key}` in {line}",
+                    self.script.display()
+                )
+            })
+        };
+        let theirs = number("parameters")? as usize;
+        anyhow::ensure!(
+            theirs == parameters,
+            "{}'s {case} network has {theirs} parameters, ours {parameters}: the definitions differ",
+            self.script.display()
+        );
+        Ok(TorchMeasured {
+            median_ms: number("median_ms")?,
+            min_ms: number("min_ms")?,
+            version: v["torch"].as_str().unwrap_or("?").to_string(),
+            capability: v["cpu_capability"].as_str().unwrap_or("?").to_string(),
+        })
+    }
+}
+
+/// The CPU's model name and vector extensions (from /proc/cpuinfo).
+fn cpu_summary() -> String {
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let field = |key: &str| {
+        info.lines()
+            .find(|l| l.starts_with(key))
+            .and_then(|l| l.split_once(':'))
+            .map(|(_, v)| v.trim().to_string())
+    };
+    let model = field("model name").unwrap_or_else(|| "unknown CPU".into());
+    let flags = field("flags").unwrap_or_default();
+    let vector: Vec<&str> = flags
+        .split_whitespace()
+        .filter(|f| {
+            [
+                "sse4_2",
+                "avx",
+                "avx2",
+                "fma",
+                "f16c",
+                "avx512f",
+                "avx512bw",
+                "avx512_vnni",
+            ]
+            .contains(f)
+                || f.starts_with("amx")
+        })
+        .collect();
+    format!("{model}; vector extensions: {}", vector.join(" "))
 }
 
 fn status_mb(key: &str) -> f64 {
@@ -200,7 +381,23 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
                 Ok(())
             })
         }
-        Case::FpfdcnnInfer => {
+        Case::FpfdcnnInfer if !backend.is_gpu() => {
+            let d = backend.device()?;
+            let model = FpfdcnnConfig::new().init(&d)?;
+            let packed = PackedFpfdcnn::new(&model)?;
+            let x: Vec<f32> = (0..480 * 640).map(|_| rng.random_range(0.0..1.0)).collect();
+            let points: Vec<(usize, usize)> = (0..500)
+                .map(|_| (rng.random_range(0..640), rng.random_range(0..480)))
+                .collect();
+            time(runs, warmup, || {
+                let out = packed.forward(&x, [480, 640])?;
+                let desc =
+                    sample_bilinear_at(&out.descriptors, out.descriptor_dims, [480, 640], &points)?;
+                anyhow::ensure!(desc.len() == 500 * 256 && out.prob.len() == 480 * 640);
+                Ok(())
+            })
+        }
+        Case::FpfdcnnInfer | Case::FpfdcnnInferBurn => {
             let d = backend.device()?;
             let model = FpfdcnnConfig::new().init(&d)?;
             let x = random([1, 1, 480, 640], &mut rng, &d);
@@ -248,6 +445,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
 }
 
 fn main() -> Result<()> {
+    sdf_slam::malloc::tune_for_tensors();
     let cli = Cli::parse();
     let backends = if cli.backend.is_empty() {
         vec![BackendKind::Ndarray, BackendKind::Flex]
@@ -264,10 +462,16 @@ fn main() -> Result<()> {
         cli.case.clone()
     };
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let torch = cli
+        .torch
+        .as_deref()
+        .map(|python| Torch::new(&cli, python, threads))
+        .transpose()?;
     println!(
         "bench: median of {} runs after {} warm-up, {threads} hardware threads",
         cli.runs, cli.warmup
     );
+    println!("CPU: {}", cpu_summary());
     for var in [
         "MALLOC_ARENA_MAX",
         "MALLOC_MMAP_THRESHOLD_",
@@ -277,8 +481,21 @@ fn main() -> Result<()> {
             println!("  {var}={v}");
         }
     }
-    let mut results = Vec::new();
+    let mut rows = Vec::new();
+    let mut torch_info = None;
     for &case in &cases {
+        // PyTorch first, then ours, case by case: each ratio compares runs minutes apart.
+        let reference = match (&torch, case.torch_name()) {
+            (Some(t), Some(name)) => {
+                eprintln!("{} on PyTorch ({} threads) ...", case.label(), t.threads);
+                let m = t.run(name, cli.runs, cli.warmup, case.parameters()?)?;
+                eprintln!("  median {:.0} ms (min {:.0})", m.median_ms, m.min_ms);
+                torch_info = Some((m.version.clone(), m.capability.clone(), t.threads));
+                rows.push(Row::torch(case, &m));
+                Some(m.median_ms)
+            }
+            _ => None,
+        };
         for &backend in &backends {
             eprintln!("{} on {backend} ...", case.label());
             let r = std::panic::catch_unwind(|| {
@@ -295,34 +512,79 @@ fn main() -> Result<()> {
                     m.median_ms, m.min_ms, m.peak_mb
                 );
             }
-            results.push((case, backend, r));
+            rows.push(Row::ours(case, backend, r, reference));
         }
     }
     println!();
-    println!(
-        "| case | PyTorch CPU (ref) | burn-flex (ref) | burn-ndarray (ref) | this: backend | median ms | min ms | peak RSS MB (base) |"
-    );
-    println!("|---|---|---|---|---|---|---|---|");
-    for (case, backend, r) in &results {
-        let refs = match case.reference() {
-            Some((pt, fx, nd)) => format!(
-                "{pt:.0} | {fx:.0} | {}",
-                nd.map_or("panics".to_string(), |v| format!("{v:.0}"))
-            ),
-            None => "– | – | –".to_string(),
-        };
-        let cells = match r {
-            Ok(m) => format!(
-                "{:.0} | {:.0} | {:.0} ({:.0})",
-                m.median_ms, m.min_ms, m.peak_mb, m.base_mb
-            ),
-            Err(e) => format!("{e} | | "),
-        };
-        println!("| {} | {refs} | {backend} | {cells} |", case.label());
+    if let Some((version, capability, t)) = &torch_info {
+        println!("PyTorch {version}, {t} threads, CPU kernels for {capability}.\n");
+    }
+    println!("| case | backend | median ms | min ms | / PyTorch | peak RSS MB (base) |");
+    println!("|---|---|---|---|---|---|");
+    for r in &rows {
+        println!("{r}");
+    }
+    if torch.is_none() {
+        println!(
+            "\n(`--torch PYTHON` adds PyTorch's times and the ratios: scripts/bench_torch.py)"
+        );
     }
     println!(
         "\nglibc malloc can be tuned without rebuilding, e.g. MALLOC_ARENA_MAX=2 or \
          MALLOC_MMAP_THRESHOLD_=<bytes>; the variables in effect are listed above."
     );
     Ok(())
+}
+
+/// One line of the table.
+struct Row {
+    case: Case,
+    backend: String,
+    cells: String,
+}
+
+impl Row {
+    fn torch(case: Case, m: &TorchMeasured) -> Self {
+        Self {
+            case,
+            backend: "PyTorch".into(),
+            cells: format!("{:.0} | {:.0} | 1.00 | –", m.median_ms, m.min_ms),
+        }
+    }
+
+    fn ours(
+        case: Case,
+        backend: BackendKind,
+        r: Result<Measured, String>,
+        reference: Option<f64>,
+    ) -> Self {
+        let cells = match r {
+            Ok(m) => format!(
+                "{:.0} | {:.0} | {} | {:.0} ({:.0})",
+                m.median_ms,
+                m.min_ms,
+                reference.map_or("–".into(), |t| format!("{:.2}", m.median_ms / t)),
+                m.peak_mb,
+                m.base_mb
+            ),
+            Err(e) => format!("{e} | | | "),
+        };
+        Self {
+            case,
+            backend: backend.to_string(),
+            cells,
+        }
+    }
+}
+
+impl std::fmt::Display for Row {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "| {} | {} | {} |",
+            self.case.label(),
+            self.backend,
+            self.cells
+        )
+    }
 }

@@ -301,6 +301,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
 }
 
 fn main() -> Result<()> {
+    sdf_slam::malloc::tune_for_tensors();
     let cli = Cli::parse();
     match cli.command {
         Command::Matching(a) => matching(a)?,

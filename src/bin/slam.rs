@@ -325,6 +325,7 @@ fn progress(n: usize, stop: Arc<AtomicBool>) -> Result<(ProgressBar, Control)> {
 }
 
 fn main() -> Result<()> {
+    sdf_slam::malloc::tune_for_tensors();
     let cli = Cli::parse();
     let mut config = match &cli.config {
         Some(p) => SlamConfig::load(p)?,

@@ -8,9 +8,10 @@
 
 use super::config::FpfdcnnTrainConfig;
 use super::model::Fpfdcnn;
+use super::packed::PackedFpfdcnn;
 use crate::error::{Error, Result};
-use crate::nn::BackendKind;
 use crate::nn::weights::load_into;
+use crate::nn::{BackendKind, sample_bilinear_at};
 use crate::training::resolve_checkpoint;
 use burn::prelude::*;
 use image::GrayImage;
@@ -192,12 +193,18 @@ pub fn select_keypoints(
     out
 }
 
+/// The coarse descriptor map of one pass: row-major values and `[dim, h / cell, w / cell]`.
+type NetworkDescriptors = (Vec<f32>, [usize; 3]);
+
 /// A loaded FPFDCNN ready to detect and describe keypoints.
 #[derive(Debug)]
 pub struct FpfdcnnDetector {
+    /// The network. On a CPU backend detection runs a packed copy of its weights made by
+    /// [`Self::new`] ([`PackedFpfdcnn`]), so changing it afterwards does not change detection.
     pub model: Fpfdcnn,
     pub device: Device,
     pub config: DetectorConfig,
+    packed: Option<PackedFpfdcnn>,
 }
 
 impl FpfdcnnDetector {
@@ -205,10 +212,15 @@ impl FpfdcnnDetector {
     /// ([`Self::load`] checks it).
     pub fn new(model: Fpfdcnn, device: Device, config: DetectorConfig) -> Self {
         debug_assert!(config.validate().is_ok(), "{config:?}");
+        // CPU: packed NHWC convolutions (2-3x Burn's on 2 cores, bench); GPUs keep Burn's.
+        let packed = crate::nn::backend::is_cpu(&device)
+            .then(|| PackedFpfdcnn::new(&model).ok())
+            .flatten();
         FpfdcnnDetector {
             model,
             device,
             config,
+            packed,
         }
     }
 
@@ -273,17 +285,13 @@ impl FpfdcnnDetector {
     }
 
     /// The network on `gray` placed at `(ox, oy)` in a zero image whose sides are multiples
-    /// of the cell: the FP map cropped back to `gray`'s pixels, the network's output, and
-    /// the padded size `[hp, wp]`.
+    /// of the cell: the FP map cropped back to `gray`'s pixels, the coarse descriptor map
+    /// (`[dim, hp / cell, wp / cell]`, row-major) and the padded size `[hp, wp]`.
     fn run_network(
         &self,
         gray: &GrayImage,
         [ox, oy]: [usize; 2],
-    ) -> Result<(
-        crate::raster::GrayF32,
-        super::model::FpfdcnnOutput,
-        [usize; 2],
-    )> {
+    ) -> Result<(crate::raster::GrayF32, NetworkDescriptors, [usize; 2])> {
         let (w, h) = (gray.width() as usize, gray.height() as usize);
         let cell = self.model.cell();
         let (wp, hp) = (
@@ -297,21 +305,34 @@ impl FpfdcnnDetector {
                 *d = v as f32 / 255.0;
             }
         }
-        let input = Tensor::<4>::from_data(TensorData::new(data, [1, 1, hp, wp]), &self.device);
-        let out = self.model.forward(input)?;
-        let prob = out
-            .prob
-            .clone()
-            .into_data()
-            .try_to_vec::<f32>()
-            .map_err(|e| Error::msg(format!("reading FP map: {e:?}")))?;
+        let (prob, descriptors) = match &self.packed {
+            Some(packed) => {
+                let out = packed.forward(&data, [hp, wp])?;
+                (out.prob, (out.descriptors, out.descriptor_dims))
+            }
+            None => {
+                let input =
+                    Tensor::<4>::from_data(TensorData::new(data, [1, 1, hp, wp]), &self.device);
+                let out = self.model.forward(input)?;
+                let read = |t: Tensor<4>, what: &str| {
+                    t.into_data()
+                        .try_to_vec::<f32>()
+                        .map_err(|e| Error::msg(format!("reading {what}: {e:?}")))
+                };
+                let [_, d, hc, wc] = out.descriptors.dims();
+                (
+                    read(out.prob, "FP map")?,
+                    (read(out.descriptors, "descriptors")?, [d, hc, wc]),
+                )
+            }
+        };
         // Keypoints inside the original image only.
         let mut cropped = crate::raster::GrayF32::new(w, h);
         for y in 0..h {
             let start = (y + oy) * wp + ox;
             cropped.data[y * w..(y + 1) * w].copy_from_slice(&prob[start..start + w]);
         }
-        Ok((cropped, out, [hp, wp]))
+        Ok((cropped, descriptors, [hp, wp]))
     }
 
     fn detect_at_native(&self, gray: &GrayImage) -> Result<Features> {
@@ -321,7 +342,7 @@ impl FpfdcnnDetector {
                 "image {w}x{h} is too small for FPFDCNN (at least 16x16)"
             )));
         }
-        let (mut cropped, out, [hp, wp]) = self.run_network(gray, [0, 0])?;
+        let (mut cropped, (map, [dim, hc, wc]), [hp, wp]) = self.run_network(gray, [0, 0])?;
         let half = self.model.cell() / 2;
         let shifts: &[[usize; 2]] = match self.config.grid_shifts {
             2 => &[[half, half]],
@@ -342,13 +363,11 @@ impl FpfdcnnDetector {
         }
         let picks = select_keypoints(&cropped.data, w, h, &self.config);
         let points: Vec<(usize, usize)> = picks.iter().map(|p| (p.0, p.1)).collect();
-        let dim = out.descriptors.dims()[1];
         let mut descriptors = Vec::with_capacity(points.len() * dim);
         if !points.is_empty() {
-            let d = self
-                .model
-                .descriptors_at(&out.descriptors, 0, [hp, wp], &points)?;
-            for v in d {
+            let d = sample_bilinear_at(&map, [dim, hc, wc], [hp, wp], &points)
+                .map_err(super::FpfdcnnError::from)?;
+            for v in d.chunks_exact(dim) {
                 // Scale first so that squaring cannot overflow.
                 let peak = v.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-30);
                 let n = v

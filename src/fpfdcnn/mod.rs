@@ -7,8 +7,10 @@ pub mod homography;
 pub mod inference;
 pub mod loss;
 mod model;
+pub mod packed;
 mod sequence;
 pub mod training;
 
 pub use inference::{DetectorConfig, Features, FpfdcnnDetector};
 pub use model::{Fpfdcnn, FpfdcnnConfig, FpfdcnnError, FpfdcnnOutput};
+pub use packed::PackedFpfdcnn;

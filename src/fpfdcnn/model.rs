@@ -260,6 +260,14 @@ impl Fpfdcnn {
     pub fn cell(&self) -> usize {
         self.cell
     }
+
+    /// L1-L10 in table order (for [`super::packed::PackedFpfdcnn`]).
+    pub(crate) fn layers(&self) -> [&Conv2d; 10] {
+        [
+            &self.l1, &self.l2, &self.l3, &self.l4, &self.l5, &self.l6, &self.l7, &self.l8,
+            &self.l9, &self.l10,
+        ]
+    }
 }
 
 fn describe(layer: &Conv2d, activation: &str) -> String {

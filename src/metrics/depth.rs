@@ -76,6 +76,25 @@ impl DepthAccumulator {
     }
 }
 
+/// The scale of one prediction: the median over valid pixels of ground truth / prediction
+/// (monocular depth papers' "median scaling"). 1 means metric on average; the spread of this
+/// ratio over the frames of a sequence is what a monocular map built from the predictions
+/// inherits as scale drift. `None` without a valid pixel.
+pub fn median_scale(gt: &[f32], pred: &[f32]) -> Option<f64> {
+    let mut r: Vec<f64> = gt
+        .iter()
+        .zip(pred)
+        .filter(|(g, p)| **g > 0.0 && g.is_finite() && p.is_finite() && **p > 0.0)
+        .map(|(&g, &p)| g as f64 / (p as f64).max(1e-3))
+        .collect();
+    if r.is_empty() {
+        return None;
+    }
+    let mid = r.len() / 2;
+    let (_, m, _) = r.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -95,5 +114,14 @@ mod tests {
         assert!((m.delta1 - 2.0 / 3.0).abs() < 1e-12);
         assert_eq!(m.delta2, 1.0);
         assert!(DepthAccumulator::default().finish().is_none());
+    }
+
+    #[test]
+    fn median_scale_ignores_invalid_pixels() {
+        // ratios 2, 2, 0.5 (0 and NaN pixels skipped): median 2.
+        let gt = [2.0f32, 4.0, 1.0, 0.0, 3.0];
+        let pred = [1.0f32, 2.0, 2.0, 5.0, f32::NAN];
+        assert_eq!(median_scale(&gt, &pred), Some(2.0));
+        assert_eq!(median_scale(&[0.0], &[1.0]), None);
     }
 }

@@ -10,7 +10,7 @@ pub mod segmentation;
 pub mod stats;
 pub mod trajectory;
 
-pub use depth::{DepthAccumulator, DepthMetrics};
+pub use depth::{DepthAccumulator, DepthMetrics, median_scale};
 pub use matching::{MatchingAccuracy, frame_pair_accuracy, matching_accuracy};
 pub use pose_error::{PoseError, PoseErrorSegment};
 pub use segmentation::{ClassScore, ConfusionMatrix};

@@ -6,6 +6,7 @@ pub mod activation;
 pub mod backend;
 pub mod conv;
 pub mod init;
+pub mod packed_conv;
 pub mod params;
 pub mod pool;
 pub mod resize;

@@ -8,7 +8,7 @@
 use anyhow::{Context, Result};
 use clap::Args;
 use sdf_slam::classes::NYU40;
-use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics};
+use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics, median_scale};
 use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::SdfcnnPredictor;
 use sdf_slam::sdfcnn::data::{DataSource, Set};
@@ -96,6 +96,9 @@ pub fn run(a: &SegArgs) -> Result<()> {
     }
     let mut confusion = ConfusionMatrix::new(classes);
     let mut depth = DepthAccumulator::default();
+    // Per image: its median scale and the metrics after dividing it out (scale-invariant).
+    let mut scales = Vec::new();
+    let mut rescaled = DepthAccumulator::default();
     let mut times = Vec::with_capacity(n);
     for i in 0..n {
         let (rgb, gt_depth, gt_labels) = data.load(i)?;
@@ -107,6 +110,11 @@ pub fn run(a: &SegArgs) -> Result<()> {
         confusion.add(&gt_labels.data, &pred.labels.data);
         if let Some(d) = &gt_depth {
             depth.add(&d.data, &pred.depth.data);
+            if let Some(s) = median_scale(&d.data, &pred.depth.data) {
+                scales.push(s);
+                let scaled: Vec<f32> = pred.depth.data.iter().map(|&p| p * s as f32).collect();
+                rescaled.add(&d.data, &scaled);
+            }
         }
         if let Some(out) = &a.out {
             let id = data.id(i);
@@ -133,6 +141,10 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let labelled = confusion.per_class().iter().any(|c| c.gt_pixels > 0);
     let seg = labelled.then(|| (confusion.mpa(), confusion.miou()));
     print_tables(a, &predictor, n, seg, m, time, params);
+    let scale = ScaleSummary::of(scales, rescaled.finish());
+    if let Some(s) = &scale {
+        s.print();
+    }
     if let Some(canonical) = predictor.depth_focal {
         println!(
             "Depth made metric for a camera of fx {fx:.1} px (the network predicts it for a focal \
@@ -158,7 +170,7 @@ pub fn run(a: &SegArgs) -> Result<()> {
             "backend": a.backend.to_string(),
             "mpa": seg.map(|s| s.0), "miou": seg.map(|s| s.1),
             "pixel_accuracy": labelled.then(|| confusion.pixel_accuracy()),
-            "depth": m, "time_per_image_s": time, "time_mean_s": times.iter().sum::<f64>() / n.max(1) as f64,
+            "depth": m, "scale": scale, "time_per_image_s": time, "time_mean_s": times.iter().sum::<f64>() / n.max(1) as f64,
             "parameters": params, "per_class": per_class,
         });
         sdf_slam::io::write_atomic(p, serde_json::to_string_pretty(&v)?.as_bytes())?;
@@ -215,6 +227,51 @@ fn print_tables(
          warm-up run first). Parameter: trainable parameters ({params}); the paper's 11.8 M \
          is close to the size in MB of 3 M f32 weights."
     );
+}
+
+/// How far the predictions are from metric, image by image: what a monocular map built
+/// from them inherits as scale error (its median) and scale drift (its spread).
+#[derive(serde::Serialize)]
+struct ScaleSummary {
+    images: usize,
+    /// Median over images of each image's median ground truth / prediction.
+    median: f64,
+    p10: f64,
+    p90: f64,
+    /// Metrics after each prediction is multiplied by its own scale.
+    rescaled: Option<DepthMetrics>,
+}
+
+impl ScaleSummary {
+    fn of(mut scales: Vec<f64>, rescaled: Option<DepthMetrics>) -> Option<Self> {
+        if scales.is_empty() {
+            return None;
+        }
+        scales.sort_by(f64::total_cmp);
+        let at = |q: f64| scales[((scales.len() - 1) as f64 * q).round() as usize];
+        Some(Self {
+            images: scales.len(),
+            median: at(0.5),
+            p10: at(0.1),
+            p90: at(0.9),
+            rescaled,
+        })
+    }
+
+    fn print(&self) {
+        println!(
+            "Scale (per image, median of ground truth / prediction; 1 = metric): median {:.3}, \
+             10-90 % {:.3}-{:.3} over {} images.",
+            self.median, self.p10, self.p90, self.images
+        );
+        if let Some(d) = &self.rescaled {
+            println!(
+                "Each image rescaled by its own scale (scale-invariant): RMS {:.3}, REL {:.3}, \
+                 δ < 1.25 {:.3}.",
+                d.rms, d.rel, d.delta1
+            );
+        }
+    }
 }
 
 fn print_classes(c: &ConfusionMatrix) {

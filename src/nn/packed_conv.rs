@@ -1,0 +1,596 @@
+//! Inference-only convolutions on channels-last (NHWC) images, with weights packed once.
+//!
+//! Burn's CPU convolutions convert each input to NHWC, build im2col tiles and transpose the
+//! result back on every call. Here activations stay NHWC from layer to layer and every
+//! convolution is a few large matrix products (the `gemm` crate, which picks AVX2 or AVX-512
+//! microkernels at run time) straight on the zero-padded image, with no im2col buffer:
+//!
+//! * stride 1, `k×k`: in a padded image of width `Wp`, output pixel `(y, x)` of kernel row `ky`
+//!   reads the `k` consecutive pixels starting at row-major index `(y + ky)·Wp + x`, that is
+//!   `k·C` consecutive floats. Computing the output over the padded width too (`Wp − W + k − 1`
+//!   wasted columns per row) makes kernel row `ky` one product `[H·Wp, k·C] × [k·C, C_out]`
+//!   whose left matrix is the image itself read with a row stride of `C` (rows overlap);
+//!   `k` products accumulate.
+//! * stride 2, even `k` (FPFDCNN's 4×4 convolutions): a 2×2 space-to-depth of the padded image
+//!   turns it into a stride-1 `k/2 × k/2` convolution over `4·C` channels.
+//! * 1×1: one product.
+//!
+//! Bias and activation are applied while the wide result is copied out (the epilogue). The
+//! results agree with Burn's `conv2d` to float rounding (tests below, and
+//! `fpfdcnn::packed`'s against the whole network).
+
+use burn::nn::conv::Conv2d;
+use burn::prelude::*;
+use rayon::prelude::*;
+
+/// Below this depth (k·c) per kernel row, one product over an im2col of all taps is faster.
+const SMALL_K: usize = 32;
+
+/// An image in channels-last layout: `data[(y·w + x)·c + ch]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Nhwc {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    pub data: Vec<f32>,
+}
+
+impl Nhwc {
+    pub fn zeros(h: usize, w: usize, c: usize) -> Self {
+        Self {
+            h,
+            w,
+            c,
+            data: vec![0.0; h * w * c],
+        }
+    }
+
+    pub fn view(&self) -> NhwcView<'_> {
+        NhwcView {
+            h: self.h,
+            w: self.w,
+            c: self.c,
+            stride: self.w,
+            data: &self.data,
+        }
+    }
+}
+
+/// A borrowed channels-last image whose rows may hold more pixels than its width (a
+/// convolution's output keeps the wide grid's extra columns): `data[(y·stride + x)·c + ch]`.
+#[derive(Debug, Clone, Copy)]
+pub struct NhwcView<'a> {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    /// Pixels per row, at least `w`.
+    pub stride: usize,
+    pub data: &'a [f32],
+}
+
+impl NhwcView<'_> {
+    /// The `c` values of pixel `(y, x)`.
+    pub fn pixel(&self, y: usize, x: usize) -> &[f32] {
+        let at = (y * self.stride + x) * self.c;
+        &self.data[at..at + self.c]
+    }
+
+    /// A compact copy.
+    pub fn to_owned(&self) -> Nhwc {
+        let mut out = Nhwc::zeros(self.h, self.w, self.c);
+        for (y, row) in out.data.chunks_exact_mut(self.w * self.c).enumerate() {
+            let at = y * self.stride * self.c;
+            row.copy_from_slice(&self.data[at..at + self.w * self.c]);
+        }
+        out
+    }
+}
+
+/// Buffers one convolution reuses from call to call: the padded (and space-to-depth) source,
+/// whose zero border is written once per input size, the wide output and the im2col matrix.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    /// The input size `src` was laid out for.
+    input: Option<[usize; 3]>,
+    src: Vec<f32>,
+    wide: Vec<f32>,
+    col: Vec<f32>,
+}
+
+/// What follows the convolution in the epilogue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activation {
+    Identity,
+    /// ELU with α = 1 (FPFDCNN, Table 12).
+    Elu,
+    Sigmoid,
+}
+
+/// Why a convolution cannot be packed (the caller keeps Burn's).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PackError {
+    #[error("packed convolutions need groups = 1, dilation 1 and square kernels: {0}")]
+    Unsupported(String),
+    #[error("reading convolution weights: {0}")]
+    Data(String),
+    #[error("input has {got} channels, the convolution expects {expected}")]
+    Channels { got: usize, expected: usize },
+    #[error("input {h}x{w} is too small or not a multiple of the stride for this convolution")]
+    Size { h: usize, w: usize },
+}
+
+/// A convolution's weights laid out for [`PackedConv::forward`].
+#[derive(Debug, Clone)]
+pub struct PackedConv {
+    cin: usize,
+    cout: usize,
+    /// Kernel size after space-to-depth (stride 2: k/2).
+    k: usize,
+    stride: usize,
+    padding: usize,
+    /// Channels after space-to-depth (stride 2: 4·cin).
+    c: usize,
+    /// Per kernel row `ky`: a row-major `[k·c, cout]` matrix, row index `kx·c + channel`.
+    weight: Vec<f32>,
+    bias: Vec<f32>,
+    activation: Activation,
+}
+
+impl PackedConv {
+    /// Packs a Burn convolution followed by `activation`.
+    pub fn new(conv: &Conv2d, activation: Activation) -> Result<Self, PackError> {
+        let [cout, cin, kh, kw] = conv.weight.dims();
+        let [sh, sw] = conv.stride;
+        let [dh, dw] = conv.dilation;
+        let padding = match conv.padding {
+            burn::nn::PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => t,
+            burn::nn::PaddingConfig2d::Valid => 0,
+            ref p => return Err(PackError::Unsupported(format!("padding {p:?}"))),
+        };
+        let stride_ok = (sh == 1 && sw == 1) || (sh == 2 && sw == 2 && kh % 2 == 0);
+        if conv.groups != 1 || kh != kw || dh != 1 || dw != 1 || !stride_ok {
+            return Err(PackError::Unsupported(format!(
+                "{kh}x{kw} kernel, stride {sh}x{sw}, dilation {dh}x{dw}, {} groups",
+                conv.groups
+            )));
+        }
+        let read = |t: Tensor<1>| {
+            t.into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .map_err(|e| PackError::Data(format!("{e:?}")))
+        };
+        let w = read(conv.weight.val().reshape([cout * cin * kh * kw]))?;
+        let bias = match &conv.bias {
+            Some(b) => read(b.val())?,
+            None => vec![0.0; cout],
+        };
+        let (stride, kernel) = (sh, kh);
+        let (k, c) = if stride == 2 {
+            (kernel / 2, 4 * cin)
+        } else {
+            (kernel, cin)
+        };
+        let mut weight = vec![0.0; k * k * c * cout];
+        for o in 0..cout {
+            for i in 0..cin {
+                for y in 0..kernel {
+                    for x in 0..kernel {
+                        let v = w[((o * cin + i) * kernel + y) * kernel + x];
+                        // Stride 2: tap (y, x) = (2a + dy, 2b + dx) reads channel
+                        // (dy·2 + dx)·cin + i of space-to-depth pixel (a, b).
+                        let (ky, kx, ch) = if stride == 2 {
+                            (y / 2, x / 2, ((y % 2) * 2 + x % 2) * cin + i)
+                        } else {
+                            (y, x, i)
+                        };
+                        weight[((ky * k + kx) * c + ch) * cout + o] = v;
+                    }
+                }
+            }
+        }
+        Ok(Self {
+            cin,
+            cout,
+            k,
+            stride,
+            padding,
+            c,
+            weight,
+            bias,
+            activation,
+        })
+    }
+
+    pub fn out_channels(&self) -> usize {
+        self.cout
+    }
+
+    /// `dst (+)= lhs · rhs` with `dst` `[rows, cout]`, `lhs` `[rows, depth]` of row stride
+    /// `lhs_stride` and `rhs` `[depth, cout]`, all row-major.
+    ///
+    /// # Safety
+    /// `lhs` and `rhs` must be valid for those shapes and strides and `dst` hold
+    /// `rows · cout` values.
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn product(
+        &self,
+        dst: &mut [f32],
+        rows: usize,
+        depth: usize,
+        lhs: *const f32,
+        lhs_stride: usize,
+        rhs: *const f32,
+        accumulate: bool,
+    ) {
+        debug_assert_eq!(dst.len(), rows * self.cout);
+        // SAFETY: the caller's contract.
+        unsafe {
+            gemm::gemm(
+                rows,
+                self.cout,
+                depth,
+                dst.as_mut_ptr(),
+                1,
+                self.cout as isize,
+                accumulate,
+                lhs,
+                1,
+                lhs_stride as isize,
+                rhs,
+                1,
+                self.cout as isize,
+                1.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::Rayon(0),
+            )
+        }
+    }
+
+    /// The convolution of `x`, bias and activation included (a compact copy of
+    /// [`Self::forward_view`]'s output, with buffers of its own).
+    pub fn forward(&self, x: &Nhwc) -> Result<Nhwc, PackError> {
+        let mut scratch = Scratch::default();
+        Ok(self.forward_view(x.view(), &mut scratch)?.to_owned())
+    }
+
+    /// The convolution of `x`, bias and activation included, computed in `scratch`, which
+    /// holds the result (rows of the wide grid, `k − 1` columns wider than the image).
+    pub fn forward_view<'s>(
+        &self,
+        x: NhwcView<'_>,
+        scratch: &'s mut Scratch,
+    ) -> Result<NhwcView<'s>, PackError> {
+        if x.c != self.cin {
+            return Err(PackError::Channels {
+                got: x.c,
+                expected: self.cin,
+            });
+        }
+        let p = self.padding;
+        let (hp, wp) = (x.h + 2 * p, x.w + 2 * p);
+        let odd = self.stride == 2 && (hp % 2 != 0 || wp % 2 != 0);
+        if odd || hp < self.k * self.stride || wp < self.k * self.stride {
+            return Err(PackError::Size { h: x.h, w: x.w });
+        }
+        // The source of the stride-1 k×k "valid" convolution, with k spare pixels at the end
+        // (the wide output's last rows read past the image). Only its interior is written
+        // below, so its border stays zero from one call to the next.
+        let (sh, sw) = if self.stride == 2 {
+            (hp / 2, wp / 2)
+        } else {
+            (hp, wp)
+        };
+        if scratch.input != Some([x.h, x.w, x.c]) {
+            scratch.src.clear();
+            scratch.src.resize((sh * sw + self.k) * self.c, 0.0);
+            scratch.input = Some([x.h, x.w, x.c]);
+        }
+        let src = &mut scratch.src;
+        if self.stride == 2 {
+            space_to_depth_padded(&x, p, sw, src);
+        } else {
+            pad_into(&x, p, src);
+        }
+        let (oh, ow) = (sh - self.k + 1, sw - self.k + 1);
+        let rows = oh * sw;
+        // Every value is written by the first product (it does not read them).
+        scratch.wide.resize(rows * self.cout, 0.0);
+        let wide = &mut scratch.wide;
+        let kc = self.k * self.c;
+        if self.k > 1 && kc < SMALL_K {
+            // Few channels (FPFDCNN's L1): one product over all k² taps of a k-row im2col,
+            // since k products of depth k·c would be dominated by their overhead.
+            let kk = self.k * kc;
+            scratch.col.resize(rows * kk, 0.0);
+            let c = self.c;
+            scratch
+                .col
+                .par_chunks_mut(kk)
+                .enumerate()
+                .for_each(|(r, dst)| {
+                    for (ky, d) in dst.chunks_exact_mut(kc).enumerate() {
+                        let at = (ky * sw + r) * c;
+                        d.copy_from_slice(&src[at..at + kc]);
+                    }
+                });
+            // SAFETY: col is [rows, k·kc], weight [k·kc, cout], wide [rows, cout].
+            unsafe {
+                self.product(
+                    wide,
+                    rows,
+                    kk,
+                    scratch.col.as_ptr(),
+                    kk,
+                    self.weight.as_ptr(),
+                    false,
+                )
+            };
+        } else {
+            for ky in 0..self.k {
+                // SAFETY: lhs rows r = 0..rows start at (ky·sw + r)·c and read k·c floats, the
+                // last ending at ((ky + oh)·sw + k − 1)·c ≤ (sh·sw + k)·c = src.len(); rhs is
+                // the [k·c, cout] block ky of `weight`; dst is [rows, cout] = wide.len().
+                unsafe {
+                    self.product(
+                        wide,
+                        rows,
+                        kc,
+                        src.as_ptr().add(ky * sw * self.c),
+                        self.c,
+                        self.weight.as_ptr().add(ky * kc * self.cout),
+                        ky > 0,
+                    )
+                };
+            }
+        }
+        // Epilogue, in place over whole rows (the extra columns too: cheaper than skipping).
+        let (bias, act, cout) = (&self.bias, self.activation, self.cout);
+        wide.par_chunks_mut(sw * cout).for_each(|row| {
+            for px in row.chunks_exact_mut(cout) {
+                for (v, &b) in px.iter_mut().zip(bias) {
+                    *v += b;
+                }
+            }
+            activate(row, act);
+        });
+        Ok(NhwcView {
+            h: oh,
+            w: ow,
+            c: cout,
+            stride: sw,
+            data: &scratch.wide,
+        })
+    }
+}
+
+/// Copies `x` into the centre of an image padded by `p` on every side (the border is left
+/// as it is: zero).
+fn pad_into(x: &NhwcView, p: usize, dst: &mut [f32]) {
+    let wp = x.w + 2 * p;
+    let row = x.w * x.c;
+    let rows = &mut dst[p * wp * x.c..(p + x.h) * wp * x.c];
+    rows.par_chunks_mut(wp * x.c)
+        .enumerate()
+        .for_each(|(y, d)| {
+            let from = y * x.stride * x.c;
+            d[p * x.c..p * x.c + row].copy_from_slice(&x.data[from..from + row]);
+        });
+}
+
+/// Space-to-depth by 2 of `x` padded by `p`: pixel `(Y, X)` of the result (width `sw`) holds
+/// padded pixels `(2Y + dy, 2X + dx)` as channels `(dy·2 + dx)·c + ch`. Only pixels of `x` are
+/// written.
+fn space_to_depth_padded(x: &NhwcView, p: usize, sw: usize, dst: &mut [f32]) {
+    let c = x.c;
+    // Output row Y holds padded rows 2Y and 2Y + 1.
+    dst.par_chunks_mut(sw * 4 * c)
+        .enumerate()
+        .for_each(|(py, d)| {
+            for dy in 0..2 {
+                let Some(y) = (2 * py + dy).checked_sub(p).filter(|&y| y < x.h) else {
+                    continue;
+                };
+                for xx in 0..x.w {
+                    let (px, dx) = ((xx + p) / 2, (xx + p) % 2);
+                    let at = px * 4 * c + (dy * 2 + dx) * c;
+                    d[at..at + c].copy_from_slice(x.pixel(y, xx));
+                }
+            }
+        });
+}
+
+/// Applies `act` in place, with the widest vector instructions the CPU has (the
+/// exponential is [`exp`]'s polynomial, which the compiler vectorises).
+pub fn activate(v: &mut [f32], act: Activation) {
+    if act == Activation::Identity {
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has AVX-512F (checked just above).
+            return unsafe { activate_avx512(v, act) };
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA (checked just above).
+            return unsafe { activate_avx2(v, act) };
+        }
+    }
+    activate_portable(v, act)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn activate_avx512(v: &mut [f32], act: Activation) {
+    activate_portable(v, act)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn activate_avx2(v: &mut [f32], act: Activation) {
+    activate_portable(v, act)
+}
+
+#[inline(always)]
+fn activate_portable(v: &mut [f32], act: Activation) {
+    match act {
+        Activation::Identity => {}
+        // min(x, 0) keeps the exponential finite; the select vectorises.
+        Activation::Elu => v.iter_mut().for_each(|x| {
+            let e = exp(x.min(0.0)) - 1.0;
+            *x = if *x < 0.0 { e } else { *x };
+        }),
+        Activation::Sigmoid => v.iter_mut().for_each(|x| *x = 1.0 / (1.0 + exp(-*x))),
+    }
+}
+
+/// `eˣ` for `f32`, branch-free so that loops over it vectorise: `2ⁿ · p(r)` with
+/// `x = n ln 2 + r`, `|r| ≤ ln 2 / 2` and `p` the degree-6 Taylor polynomial (relative error
+/// below 2e-7); `x` is clamped to [−87, 88], where `eˣ` is a normal `f32`.
+#[inline(always)]
+pub fn exp(x: f32) -> f32 {
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Adding 1.5·2²³ rounds to the nearest integer n in the low mantissa bits: no rounding
+    // call, which would keep the loop scalar.
+    const SHIFT: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let t = x * std::f32::consts::LOG2_E + SHIFT;
+    let n = t - SHIFT;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let n = t.to_bits() as i32 - 0x4B40_0000;
+    p * f32::from_bits(((n + 127) as u32) << 23)
+}
+
+/// An NCHW tensor of one image (batch 1) as [`Nhwc`].
+pub fn from_nchw(data: &[f32], [c, h, w]: [usize; 3]) -> Nhwc {
+    let mut out = Nhwc::zeros(h, w, c);
+    for ch in 0..c {
+        for (i, &v) in data[ch * h * w..(ch + 1) * h * w].iter().enumerate() {
+            out.data[i * c + ch] = v;
+        }
+    }
+    out
+}
+
+/// `x` as a row-major `[c, h, w]` vector.
+pub fn to_nchw(x: &NhwcView) -> Vec<f32> {
+    let plane = x.h * x.w;
+    let mut out = vec![0.0; x.c * plane];
+    for y in 0..x.h {
+        for xx in 0..x.w {
+            for (ch, &v) in x.pixel(y, xx).iter().enumerate() {
+                out[ch * plane + y * x.w + xx] = v;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::PaddingConfig2d;
+    use burn::nn::conv::Conv2dConfig;
+    use rand::{RngExt, SeedableRng};
+
+    fn check(cin: usize, cout: usize, k: usize, s: usize, p: usize, [h, w]: [usize; 2]) {
+        let d = Device::flex();
+        let conv = Conv2dConfig::new([cin, cout], [k, k])
+            .with_stride([s, s])
+            .with_padding(PaddingConfig2d::Explicit(p, p, p, p))
+            .init(&d);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let x: Vec<f32> = (0..cin * h * w)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        for act in [Activation::Identity, Activation::Elu, Activation::Sigmoid] {
+            let packed = PackedConv::new(&conv, act).unwrap();
+            let got = packed.forward(&from_nchw(&x, [cin, h, w])).unwrap();
+            let input = Tensor::<4>::from_data(TensorData::new(x.clone(), [1, cin, h, w]), &d);
+            let y = conv.forward(input);
+            let y = match act {
+                Activation::Identity => y,
+                Activation::Elu => crate::nn::elu(y, 1.0),
+                Activation::Sigmoid => burn::tensor::activation::sigmoid(y),
+            };
+            let [_, c, oh, ow] = y.dims();
+            assert_eq!([got.c, got.h, got.w], [c, oh, ow]);
+            let want = y.into_data().try_into_vec::<f32>().unwrap();
+            let got = to_nchw(&got.view());
+            let peak = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            for (a, b) in got.iter().zip(&want) {
+                assert!(
+                    (a - b).abs() <= 1e-5 * peak.max(1.0),
+                    "{a} vs {b} ({act:?})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn exp_is_accurate_and_saturates() {
+        for i in -8700..=8800 {
+            let x = i as f32 / 100.0;
+            let (got, want) = (exp(x), (x as f64).exp());
+            assert!(
+                ((got as f64 - want) / want).abs() < 3e-7,
+                "exp({x}) = {got}, not {want}"
+            );
+        }
+        assert!(exp(-1e30) > 0.0 && exp(1e30).is_finite() && exp(f32::NEG_INFINITY) > 0.0);
+        let mut v = vec![-100.0f32, -1.0, 0.0, 2.0, 100.0, -1e-4];
+        activate(&mut v, Activation::Elu);
+        assert_eq!(v[2..5], [0.0, 2.0, 100.0]);
+        assert!((v[0] + 1.0).abs() < 1e-7 && (v[1] - (-1.0f32).exp_m1()).abs() < 1e-7);
+        assert!((v[5] - (-1e-4f32).exp_m1()).abs() < 1e-7);
+        let mut s = vec![-100.0f32, 0.0, 100.0];
+        activate(&mut s, Activation::Sigmoid);
+        assert!(s[0] >= 0.0 && s[0] < 1e-37 && s[1] == 0.5 && s[2] == 1.0);
+    }
+
+    #[test]
+    fn matches_burn_for_fpfdcnn_geometries() {
+        check(1, 8, 4, 2, 1, [16, 24]); // L1
+        check(5, 7, 4, 2, 1, [12, 8]); // L2, L4, L6
+        check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9
+        check(9, 4, 1, 1, 0, [5, 6]); // L8, L10
+        check(3, 3, 5, 1, 2, [6, 6]);
+    }
+
+    #[test]
+    fn refuses_what_it_cannot_pack_and_wrong_inputs() {
+        let d = Device::flex();
+        let dw = Conv2dConfig::new([4, 4], [3, 3]).with_groups(4).init(&d);
+        assert!(matches!(
+            PackedConv::new(&dw, Activation::Identity),
+            Err(PackError::Unsupported(_))
+        ));
+        let s3 = Conv2dConfig::new([4, 4], [3, 3])
+            .with_stride([3, 3])
+            .init(&d);
+        assert!(PackedConv::new(&s3, Activation::Identity).is_err());
+        let c = Conv2dConfig::new([2, 4], [4, 4])
+            .with_stride([2, 2])
+            .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+            .init(&d);
+        let p = PackedConv::new(&c, Activation::Identity).unwrap();
+        assert!(matches!(
+            p.forward(&Nhwc::zeros(8, 8, 3)),
+            Err(PackError::Channels { .. })
+        ));
+        assert!(matches!(
+            p.forward(&Nhwc::zeros(7, 8, 2)),
+            Err(PackError::Size { .. })
+        ));
+    }
+}

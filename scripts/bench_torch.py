@@ -20,7 +20,7 @@ Cases (the names and definitions of `bench`, src/bin/bench.rs):
 * fpfdcnn-infer: forward of one 480x640 grey image, descriptors bilinearly sampled at 500
   keypoints of the coarse map (the FD layer without upsampling all 256 channels);
 * sdfcnn-infer: one 640x480 RGB image: Layer0 resize to 300x400 + eq. 15 normalisation,
-  encoder, decoder, judge, bilinear to 640x480 (40 logits + depth);
+  encoder, decoder, judge, bilinear to 640x480 (40 logits + depth), labels by argmax;
 * fpfdcnn-train: one SGD step (momentum 0.9, lr 0.01), batch 4, 240x320, loss = mean of the
   probability map + mean of the descriptors;
 * sdfcnn-train: one SGD step, batch 4, 240x320: forward to the judge layer (1/4 of 300x400),
@@ -251,7 +251,8 @@ def make_case(case, gen):
         def step():
             with torch.inference_mode():
                 seg, depth = model(x)
-                assert seg.shape == (1, 40, 480, 640) and depth.shape == (1, 1, 480, 640)
+                labels = seg.argmax(1)
+                assert labels.shape == (1, 480, 640) and depth.shape == (1, 1, 480, 640)
         return model, step
     opt = torch.optim.SGD(model.parameters(), lr=0.01, momentum=0.9)
     model.train()

@@ -7,8 +7,10 @@
 //! ```
 //!
 //! Cases (median of `--runs` after `--warmup` untimed runs; each waits for its results):
-//! * `sdfcnn-infer`: SDFCNN forward of one 640×480 RGB image to full-resolution logits and depth
-//!   (Table 13 out_seg/out_depth);
+//! * `sdfcnn-infer`: SDFCNN on one 640×480 RGB image to full-resolution labels (the argmax of
+//!   the upsampled logits, Table 13 out_seg) and depth (out_depth) the way the predictor runs it:
+//!   on CPU backends the packed NHWC network (`PackedSdfcnn`), on GPUs Burn's;
+//! * `sdfcnn-infer-burn`: the same with Burn's kernels (`Sdfcnn::forward` and an argmax);
 //! * `sdfcnn-train`: one SGD step at batch 4, 240×320: forward to the judge layer, eq. 21 loss
 //!   (λ 0.4, berHu), backward, optimizer update;
 //! * `fpfdcnn-infer`: FPFDCNN forward of one 480×640 grey image and descriptors at 500 keypoints
@@ -39,7 +41,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sdf_slam::fpfdcnn::{FpfdcnnConfig, PackedFpfdcnn};
 use sdf_slam::nn::{BackendKind, sample_bilinear_at, trainable_params};
-use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
+use sdf_slam::sdfcnn::{PackedSdfcnn, SdfcnnConfig, SdfcnnLossConfig};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Instant;
@@ -80,16 +82,18 @@ enum Case {
     FpfdcnnInferBurn,
     FpfdcnnDetect,
     SdfcnnInfer,
+    SdfcnnInferBurn,
     FpfdcnnTrain,
     SdfcnnTrain,
 }
 
 impl Case {
-    const ALL: [Case; 6] = [
+    const ALL: [Case; 7] = [
         Case::FpfdcnnInfer,
         Case::FpfdcnnInferBurn,
         Case::FpfdcnnDetect,
         Case::SdfcnnInfer,
+        Case::SdfcnnInferBurn,
         Case::FpfdcnnTrain,
         Case::SdfcnnTrain,
     ];
@@ -99,7 +103,8 @@ impl Case {
             Case::FpfdcnnInfer => "FPFDCNN inference 480x640 + 500 descriptors",
             Case::FpfdcnnInferBurn => "FPFDCNN inference as above, Burn's kernels",
             Case::FpfdcnnDetect => "FPFDCNN detector 480x640, 4 grid placements, top 500",
-            Case::SdfcnnInfer => "SDFCNN inference 640x480",
+            Case::SdfcnnInfer => "SDFCNN inference 640x480 to labels + depth",
+            Case::SdfcnnInferBurn => "SDFCNN inference as above, Burn's kernels",
             Case::FpfdcnnTrain => "FPFDCNN train step, batch 4, 240x320 (stand-in loss)",
             Case::SdfcnnTrain => "SDFCNN train step, batch 4, 240x320 (eq. 21)",
         }
@@ -110,7 +115,7 @@ impl Case {
         match self {
             Case::FpfdcnnInfer | Case::FpfdcnnInferBurn => Some("fpfdcnn-infer"),
             Case::FpfdcnnDetect => None,
-            Case::SdfcnnInfer => Some("sdfcnn-infer"),
+            Case::SdfcnnInfer | Case::SdfcnnInferBurn => Some("sdfcnn-infer"),
             Case::FpfdcnnTrain => Some("fpfdcnn-train"),
             Case::SdfcnnTrain => Some("sdfcnn-train"),
         }
@@ -121,7 +126,7 @@ impl Case {
     fn parameters(self) -> Result<usize> {
         let d = BackendKind::Flex.device()?;
         Ok(match self {
-            Case::SdfcnnInfer | Case::SdfcnnTrain => {
+            Case::SdfcnnInfer | Case::SdfcnnInferBurn | Case::SdfcnnTrain => {
                 trainable_params(&SdfcnnConfig::new().init(&d)?)
             }
             _ => trainable_params(&FpfdcnnConfig::new().init(&d)?),
@@ -346,13 +351,27 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
             .init()
     };
     match case {
-        Case::SdfcnnInfer => {
+        Case::SdfcnnInfer if !backend.is_gpu() => {
+            let d = backend.device()?;
+            let model = SdfcnnConfig::new().init(&d)?;
+            let packed = PackedSdfcnn::new(&model)?;
+            let x: Vec<f32> = (0..480 * 640 * 3)
+                .map(|_| rng.random_range(0.0..1.0))
+                .collect();
+            time(runs, warmup, || {
+                let (labels, depth) = packed.predict(&x, [480, 640])?;
+                anyhow::ensure!(labels.len() == 480 * 640 && depth.len() == 480 * 640);
+                Ok(())
+            })
+        }
+        Case::SdfcnnInfer | Case::SdfcnnInferBurn => {
             let d = backend.device()?;
             let model = SdfcnnConfig::new().init(&d)?;
             let x = random([1, 3, 480, 640], &mut rng, &d);
             time(runs, warmup, || {
                 let out = model.forward(x.clone())?;
-                sync(out.seg);
+                let labels = out.seg.argmax(1).into_data();
+                anyhow::ensure!(labels.num_elements() == 480 * 640);
                 sync(out.depth);
                 Ok(())
             })

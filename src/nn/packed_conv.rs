@@ -23,68 +23,10 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use rayon::prelude::*;
 
+pub use super::nhwc::{Activation, Nhwc, NhwcView, activate, from_nchw, to_nchw};
+
 /// Below this depth (k·c) per kernel row, one product over an im2col of all taps is faster.
 const SMALL_K: usize = 32;
-
-/// An image in channels-last layout: `data[(y·w + x)·c + ch]`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Nhwc {
-    pub h: usize,
-    pub w: usize,
-    pub c: usize,
-    pub data: Vec<f32>,
-}
-
-impl Nhwc {
-    pub fn zeros(h: usize, w: usize, c: usize) -> Self {
-        Self {
-            h,
-            w,
-            c,
-            data: vec![0.0; h * w * c],
-        }
-    }
-
-    pub fn view(&self) -> NhwcView<'_> {
-        NhwcView {
-            h: self.h,
-            w: self.w,
-            c: self.c,
-            stride: self.w,
-            data: &self.data,
-        }
-    }
-}
-
-/// A borrowed channels-last image whose rows may hold more pixels than its width (a
-/// convolution's output keeps the wide grid's extra columns): `data[(y·stride + x)·c + ch]`.
-#[derive(Debug, Clone, Copy)]
-pub struct NhwcView<'a> {
-    pub h: usize,
-    pub w: usize,
-    pub c: usize,
-    /// Pixels per row, at least `w`.
-    pub stride: usize,
-    pub data: &'a [f32],
-}
-
-impl NhwcView<'_> {
-    /// The `c` values of pixel `(y, x)`.
-    pub fn pixel(&self, y: usize, x: usize) -> &[f32] {
-        let at = (y * self.stride + x) * self.c;
-        &self.data[at..at + self.c]
-    }
-
-    /// A compact copy.
-    pub fn to_owned(&self) -> Nhwc {
-        let mut out = Nhwc::zeros(self.h, self.w, self.c);
-        for (y, row) in out.data.chunks_exact_mut(self.w * self.c).enumerate() {
-            let at = y * self.stride * self.c;
-            row.copy_from_slice(&self.data[at..at + self.w * self.c]);
-        }
-        out
-    }
-}
 
 /// Buffers one convolution reuses from call to call: the padded (and space-to-depth) source,
 /// whose zero border is written once per input size, the wide output and the im2col matrix.
@@ -95,15 +37,6 @@ pub struct Scratch {
     src: Vec<f32>,
     wide: Vec<f32>,
     col: Vec<f32>,
-}
-
-/// What follows the convolution in the epilogue.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Activation {
-    Identity,
-    /// ELU with α = 1 (FPFDCNN, Table 12).
-    Elu,
-    Sigmoid,
 }
 
 /// Why a convolution cannot be packed (the caller keeps Burn's).
@@ -136,40 +69,135 @@ pub struct PackedConv {
     activation: Activation,
 }
 
+/// The shape of a square convolution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConvGeometry {
+    pub cout: usize,
+    /// Input channels per group.
+    pub cin: usize,
+    pub kernel: usize,
+    pub stride: usize,
+    pub padding: usize,
+    pub groups: usize,
+}
+
+/// A Burn convolution's weights (row-major `[cout, cin / groups, k, k]`), bias (zeros
+/// without one) and shape; square kernels, equal strides and padding, no dilation.
+pub fn read_conv(conv: &Conv2d) -> Result<(Vec<f32>, Vec<f32>, ConvGeometry), PackError> {
+    let [cout, cin, kh, kw] = conv.weight.dims();
+    let [sh, sw] = conv.stride;
+    let [dh, dw] = conv.dilation;
+    let padding = match conv.padding {
+        burn::nn::PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => t,
+        burn::nn::PaddingConfig2d::Valid => 0,
+        ref p => return Err(PackError::Unsupported(format!("padding {p:?}"))),
+    };
+    if kh != kw || sh != sw || dh != 1 || dw != 1 {
+        return Err(PackError::Unsupported(format!(
+            "{kh}x{kw} kernel, stride {sh}x{sw}, dilation {dh}x{dw}"
+        )));
+    }
+    let read = |t: Tensor<1>| {
+        t.into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .map_err(|e| PackError::Data(format!("{e:?}")))
+    };
+    let weight = read(conv.weight.val().reshape([cout * cin * kh * kw]))?;
+    let bias = match &conv.bias {
+        Some(b) => read(b.val())?,
+        None => vec![0.0; cout],
+    };
+    let geometry = ConvGeometry {
+        cout,
+        cin,
+        kernel: kh,
+        stride: sh,
+        padding,
+        groups: conv.groups,
+    };
+    Ok((weight, bias, geometry))
+}
+
+/// Folds an inference-mode batch normalisation into the convolution before it:
+/// `γ (w·x + b − μ) / √(σ² + ε) + β` is a convolution with weights `w·s` and bias
+/// `(b − μ)·s + β`, `s = γ / √(σ² + ε)` per output channel.
+pub fn fold_batch_norm(
+    weight: &mut [f32],
+    bias: &mut [f32],
+    bn: &burn::nn::BatchNorm,
+) -> Result<(), PackError> {
+    let read = |t: Tensor<1>| {
+        t.into_data()
+            .convert::<f64>()
+            .try_into_vec::<f64>()
+            .map_err(|e| PackError::Data(format!("{e:?}")))
+    };
+    let gamma = read(bn.gamma.val())?;
+    let beta = read(bn.beta.val())?;
+    let mean = read(bn.running_mean.value())?;
+    let var = read(bn.running_var.value())?;
+    let cout = bias.len();
+    if [gamma.len(), beta.len(), mean.len(), var.len()] != [cout; 4] {
+        return Err(PackError::Data(format!(
+            "batch norm of {} channels after {cout}",
+            gamma.len()
+        )));
+    }
+    let per = weight.len() / cout;
+    for o in 0..cout {
+        let s = gamma[o] / (var[o] + bn.epsilon).sqrt();
+        weight[o * per..(o + 1) * per]
+            .iter_mut()
+            .for_each(|w| *w = (*w as f64 * s) as f32);
+        bias[o] = ((bias[o] as f64 - mean[o]) * s + beta[o]) as f32;
+    }
+    Ok(())
+}
+
 impl PackedConv {
     /// Packs a Burn convolution followed by `activation`.
     pub fn new(conv: &Conv2d, activation: Activation) -> Result<Self, PackError> {
-        let [cout, cin, kh, kw] = conv.weight.dims();
-        let [sh, sw] = conv.stride;
-        let [dh, dw] = conv.dilation;
-        let padding = match conv.padding {
-            burn::nn::PaddingConfig2d::Explicit(t, l, b, r) if t == l && l == b && b == r => t,
-            burn::nn::PaddingConfig2d::Valid => 0,
-            ref p => return Err(PackError::Unsupported(format!("padding {p:?}"))),
-        };
-        let stride_ok = (sh == 1 && sw == 1) || (sh == 2 && sw == 2 && kh % 2 == 0);
-        if conv.groups != 1 || kh != kw || dh != 1 || dw != 1 || !stride_ok {
+        let (weight, bias, geometry) = read_conv(conv)?;
+        if geometry.groups != 1 {
             return Err(PackError::Unsupported(format!(
-                "{kh}x{kw} kernel, stride {sh}x{sw}, dilation {dh}x{dw}, {} groups",
-                conv.groups
+                "{} groups",
+                geometry.groups
             )));
         }
-        let read = |t: Tensor<1>| {
-            t.into_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .map_err(|e| PackError::Data(format!("{e:?}")))
-        };
-        let w = read(conv.weight.val().reshape([cout * cin * kh * kw]))?;
-        let bias = match &conv.bias {
-            Some(b) => read(b.val())?,
-            None => vec![0.0; cout],
-        };
-        let (stride, kernel) = (sh, kh);
-        let (k, c) = if stride == 2 {
-            (kernel / 2, 4 * cin)
+        Self::from_weights(&weight, &bias, geometry, activation)
+    }
+
+    /// Packs row-major `[cout, cin, k, k]` weights and a bias (for example a convolution with
+    /// a batch normalisation folded in, [`fold_batch_norm`]).
+    pub fn from_weights(
+        w: &[f32],
+        bias: &[f32],
+        g: ConvGeometry,
+        activation: Activation,
+    ) -> Result<Self, PackError> {
+        let ConvGeometry {
+            cout,
+            cin,
+            kernel,
+            stride,
+            padding,
+            groups,
+        } = g;
+        if groups != 1 || !(stride == 1 || stride == 2) || w.len() != cout * cin * kernel * kernel {
+            return Err(PackError::Unsupported(format!("{g:?}")));
+        }
+        // Stride 2 with an odd kernel: the same convolution with one more row and column of
+        // zero taps, which the space-to-depth form needs (same output size on even inputs).
+        let taps = if stride == 2 {
+            kernel + kernel % 2
         } else {
-            (kernel, cin)
+            kernel
+        };
+        let (k, c) = if stride == 2 {
+            (taps / 2, 4 * cin)
+        } else {
+            (taps, cin)
         };
         let mut weight = vec![0.0; k * k * c * cout];
         for o in 0..cout {
@@ -197,7 +225,7 @@ impl PackedConv {
             padding,
             c,
             weight,
-            bias,
+            bias: bias.to_vec(),
             activation,
         })
     }
@@ -403,99 +431,6 @@ fn space_to_depth_padded(x: &NhwcView, p: usize, sw: usize, dst: &mut [f32]) {
         });
 }
 
-/// Applies `act` in place, with the widest vector instructions the CPU has (the
-/// exponential is [`exp`]'s polynomial, which the compiler vectorises).
-pub fn activate(v: &mut [f32], act: Activation) {
-    if act == Activation::Identity {
-        return;
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512F (checked just above).
-            return unsafe { activate_avx512(v, act) };
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU has AVX2 and FMA (checked just above).
-            return unsafe { activate_avx2(v, act) };
-        }
-    }
-    activate_portable(v, act)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-fn activate_avx512(v: &mut [f32], act: Activation) {
-    activate_portable(v, act)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn activate_avx2(v: &mut [f32], act: Activation) {
-    activate_portable(v, act)
-}
-
-#[inline(always)]
-fn activate_portable(v: &mut [f32], act: Activation) {
-    match act {
-        Activation::Identity => {}
-        // min(x, 0) keeps the exponential finite; the select vectorises.
-        Activation::Elu => v.iter_mut().for_each(|x| {
-            let e = exp(x.min(0.0)) - 1.0;
-            *x = if *x < 0.0 { e } else { *x };
-        }),
-        Activation::Sigmoid => v.iter_mut().for_each(|x| *x = 1.0 / (1.0 + exp(-*x))),
-    }
-}
-
-/// `eˣ` for `f32`, branch-free so that loops over it vectorise: `2ⁿ · p(r)` with
-/// `x = n ln 2 + r`, `|r| ≤ ln 2 / 2` and `p` the degree-6 Taylor polynomial (relative error
-/// below 2e-7); `x` is clamped to [−87, 88], where `eˣ` is a normal `f32`.
-#[inline(always)]
-pub fn exp(x: f32) -> f32 {
-    const LN2_HI: f32 = 0.693_359_4;
-    const LN2_LO: f32 = -2.121_944_4e-4;
-    // Adding 1.5·2²³ rounds to the nearest integer n in the low mantissa bits: no rounding
-    // call, which would keep the loop scalar.
-    const SHIFT: f32 = 12_582_912.0;
-    let x = x.clamp(-87.0, 88.0);
-    let t = x * std::f32::consts::LOG2_E + SHIFT;
-    let n = t - SHIFT;
-    let r = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.0
-        + r * (1.0
-            + r * (0.5
-                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    let n = t.to_bits() as i32 - 0x4B40_0000;
-    p * f32::from_bits(((n + 127) as u32) << 23)
-}
-
-/// An NCHW tensor of one image (batch 1) as [`Nhwc`].
-pub fn from_nchw(data: &[f32], [c, h, w]: [usize; 3]) -> Nhwc {
-    let mut out = Nhwc::zeros(h, w, c);
-    for ch in 0..c {
-        for (i, &v) in data[ch * h * w..(ch + 1) * h * w].iter().enumerate() {
-            out.data[i * c + ch] = v;
-        }
-    }
-    out
-}
-
-/// `x` as a row-major `[c, h, w]` vector.
-pub fn to_nchw(x: &NhwcView) -> Vec<f32> {
-    let plane = x.h * x.w;
-    let mut out = vec![0.0; x.c * plane];
-    for y in 0..x.h {
-        for xx in 0..x.w {
-            for (ch, &v) in x.pixel(y, xx).iter().enumerate() {
-                out[ch * plane + y * x.w + xx] = v;
-            }
-        }
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -513,7 +448,13 @@ mod tests {
         let x: Vec<f32> = (0..cin * h * w)
             .map(|_| rng.random_range(-1.0..1.0))
             .collect();
-        for act in [Activation::Identity, Activation::Elu, Activation::Sigmoid] {
+        for act in [
+            Activation::Identity,
+            Activation::Elu,
+            Activation::Sigmoid,
+            Activation::Relu,
+            Activation::Relu6,
+        ] {
             let packed = PackedConv::new(&conv, act).unwrap();
             let got = packed.forward(&from_nchw(&x, [cin, h, w])).unwrap();
             let input = Tensor::<4>::from_data(TensorData::new(x.clone(), [1, cin, h, w]), &d);
@@ -522,6 +463,8 @@ mod tests {
                 Activation::Identity => y,
                 Activation::Elu => crate::nn::elu(y, 1.0),
                 Activation::Sigmoid => burn::tensor::activation::sigmoid(y),
+                Activation::Relu => burn::tensor::activation::relu(y),
+                Activation::Relu6 => burn::tensor::activation::relu6(y),
             };
             let [_, c, oh, ow] = y.dims();
             assert_eq!([got.c, got.h, got.w], [c, oh, ow]);
@@ -538,29 +481,9 @@ mod tests {
     }
 
     #[test]
-    fn exp_is_accurate_and_saturates() {
-        for i in -8700..=8800 {
-            let x = i as f32 / 100.0;
-            let (got, want) = (exp(x), (x as f64).exp());
-            assert!(
-                ((got as f64 - want) / want).abs() < 3e-7,
-                "exp({x}) = {got}, not {want}"
-            );
-        }
-        assert!(exp(-1e30) > 0.0 && exp(1e30).is_finite() && exp(f32::NEG_INFINITY) > 0.0);
-        let mut v = vec![-100.0f32, -1.0, 0.0, 2.0, 100.0, -1e-4];
-        activate(&mut v, Activation::Elu);
-        assert_eq!(v[2..5], [0.0, 2.0, 100.0]);
-        assert!((v[0] + 1.0).abs() < 1e-7 && (v[1] - (-1.0f32).exp_m1()).abs() < 1e-7);
-        assert!((v[5] - (-1e-4f32).exp_m1()).abs() < 1e-7);
-        let mut s = vec![-100.0f32, 0.0, 100.0];
-        activate(&mut s, Activation::Sigmoid);
-        assert!(s[0] >= 0.0 && s[0] < 1e-37 && s[1] == 0.5 && s[2] == 1.0);
-    }
-
-    #[test]
     fn matches_burn_for_fpfdcnn_geometries() {
         check(1, 8, 4, 2, 1, [16, 24]); // L1
+        check(3, 8, 3, 2, 1, [16, 24]); // SDFCNN Layer1 (odd kernel, stride 2)
         check(5, 7, 4, 2, 1, [12, 8]); // L2, L4, L6
         check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9
         check(9, 4, 1, 1, 0, [5, 6]); // L8, L10

@@ -40,8 +40,8 @@ pub(crate) fn describe(conv: &Conv2d) -> String {
 #[derive(Module, Debug)]
 pub struct ConvBn {
     pub(crate) conv: Conv2d,
-    bn: BatchNorm,
-    relu6: bool,
+    pub(super) bn: BatchNorm,
+    pub(super) relu6: bool,
 }
 
 impl ConvBn {
@@ -111,10 +111,10 @@ impl ConvBn {
 /// is 1 and the channel count is unchanged.
 #[derive(Module, Debug)]
 pub struct InvertedResidual {
-    expand: ConvBn,
-    depthwise: ConvBn,
-    project: ConvBn,
-    residual: bool,
+    pub(super) expand: ConvBn,
+    pub(super) depthwise: ConvBn,
+    pub(super) project: ConvBn,
+    pub(super) residual: bool,
 }
 
 impl InvertedResidual {
@@ -186,7 +186,7 @@ impl InvertedResidual {
 /// One encoder layer (Fig. 6 right, Table 4): a chain of inverted-residual blocks.
 #[derive(Module, Debug)]
 pub struct Stage {
-    blocks: Vec<InvertedResidual>,
+    pub(super) blocks: Vec<InvertedResidual>,
 }
 
 impl Stage {
@@ -276,7 +276,7 @@ impl CrpNames<'_> {
 #[derive(Module, Debug)]
 pub struct Crp {
     pool: MaxPool2d,
-    convs: Vec<Conv2d>,
+    pub(super) convs: Vec<Conv2d>,
 }
 
 impl Crp {

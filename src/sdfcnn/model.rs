@@ -131,49 +131,49 @@ pub struct SdfcnnOutput {
 /// SDFCNN model (Table 13).
 #[derive(Module, Debug)]
 pub struct Sdfcnn {
-    layer1: ConvBn,
-    layer2: Stage,
-    layer3: Stage,
-    layer4: Stage,
-    layer5: Stage,
-    layer6: Stage,
+    pub(super) layer1: ConvBn,
+    pub(super) layer2: Stage,
+    pub(super) layer3: Stage,
+    pub(super) layer4: Stage,
+    pub(super) layer5: Stage,
+    pub(super) layer6: Stage,
     /// Layer7's three 160-channel blocks (Layer7_1–7_9).
-    layer7: Stage,
+    pub(super) layer7: Stage,
     /// Layer7's last, 320-channel block (Layer7_10–7_12).
-    layer7_320: Stage,
+    pub(super) layer7_320: Stage,
     /// Layer7_13: 320→256.
-    conv8: Conv2d,
+    pub(super) conv8: Conv2d,
     /// Layer7_14: 160→256.
-    conv7: Conv2d,
+    pub(super) conv7: Conv2d,
     /// Layer6_10: 96→256.
-    conv6: Conv2d,
+    pub(super) conv6: Conv2d,
     /// Layer5_13: 64→256.
-    conv5: Conv2d,
+    pub(super) conv5: Conv2d,
     /// Layer4_10: 32→256.
-    conv4: Conv2d,
+    pub(super) conv4: Conv2d,
     /// Layer3_7: 24→256.
-    conv3: Conv2d,
-    crp4: Crp,
-    crp3: Crp,
-    crp2: Crp,
-    crp1: Crp,
+    pub(super) conv3: Conv2d,
+    pub(super) crp4: Crp,
+    pub(super) crp3: Crp,
+    pub(super) crp2: Crp,
+    pub(super) crp1: Crp,
     /// Layer7_24.
-    adapt4: Conv2d,
+    pub(super) adapt4: Conv2d,
     /// Layer9_9.
-    adapt3: Conv2d,
+    pub(super) adapt3: Conv2d,
     /// Layer10_5.
-    adapt2: Conv2d,
+    pub(super) adapt2: Conv2d,
     /// seg: depthwise 1×1.
-    pre_seg: Conv2d,
+    pub(super) pre_seg: Conv2d,
     /// seg1: 1×1 → classes.
-    seg: Conv2d,
+    pub(super) seg: Conv2d,
     /// depth: depthwise 1×1.
-    pre_depth: Conv2d,
+    pub(super) pre_depth: Conv2d,
     /// depth1: 3×3 → 1.
-    depth: Conv2d,
-    inner_size: [usize; 2],
-    mean: [f32; 3],
-    std: [f32; 3],
+    pub(super) depth: Conv2d,
+    pub(super) inner_size: [usize; 2],
+    pub(super) mean: [f32; 3],
+    pub(super) std: [f32; 3],
 }
 
 impl SdfcnnConfig {

@@ -1,0 +1,297 @@
+//! Channels-last (NHWC) images for the packed inference networks, and the element-wise steps
+//! between their convolutions: activations (vectorised for the CPU at hand), bilinear
+//! resizing as [`super::resize_bilinear`] does it, max pooling, sums.
+
+use rayon::prelude::*;
+
+/// An image in channels-last layout: `data[(y·w + x)·c + ch]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Nhwc {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    pub data: Vec<f32>,
+}
+
+impl Nhwc {
+    pub fn zeros(h: usize, w: usize, c: usize) -> Self {
+        Self {
+            h,
+            w,
+            c,
+            data: vec![0.0; h * w * c],
+        }
+    }
+
+    pub fn view(&self) -> NhwcView<'_> {
+        NhwcView {
+            h: self.h,
+            w: self.w,
+            c: self.c,
+            stride: self.w,
+            data: &self.data,
+        }
+    }
+}
+
+/// A borrowed channels-last image whose rows may hold more pixels than its width (a
+/// convolution's output keeps the wide grid's extra columns): `data[(y·stride + x)·c + ch]`.
+#[derive(Debug, Clone, Copy)]
+pub struct NhwcView<'a> {
+    pub h: usize,
+    pub w: usize,
+    pub c: usize,
+    /// Pixels per row, at least `w`.
+    pub stride: usize,
+    pub data: &'a [f32],
+}
+
+impl NhwcView<'_> {
+    /// The `c` values of pixel `(y, x)`.
+    pub fn pixel(&self, y: usize, x: usize) -> &[f32] {
+        let at = (y * self.stride + x) * self.c;
+        &self.data[at..at + self.c]
+    }
+
+    /// A compact copy.
+    pub fn to_owned(&self) -> Nhwc {
+        let mut out = Nhwc::zeros(self.h, self.w, self.c);
+        for (y, row) in out.data.chunks_exact_mut(self.w * self.c).enumerate() {
+            let at = y * self.stride * self.c;
+            row.copy_from_slice(&self.data[at..at + self.w * self.c]);
+        }
+        out
+    }
+}
+
+/// What follows the convolution in the epilogue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Activation {
+    Identity,
+    Relu,
+    /// `min(max(x, 0), 6)` (MobileNetV2).
+    Relu6,
+    /// ELU with α = 1 (FPFDCNN, Table 12).
+    Elu,
+    Sigmoid,
+}
+
+/// Defines `fn $name(args)` that runs its body compiled for AVX-512 or AVX2 + FMA when the CPU
+/// has them (checked at run time), so that the compiler vectorises the loops inside with the
+/// widest registers available; elsewhere the portable build.
+macro_rules! simd_fn {
+    ($(#[$m:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$m])*
+        $vis fn $name($($arg: $ty),*) {
+            #[inline(always)]
+            fn imp($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f")]
+                fn v4($($arg: $ty),*) {
+                    imp($($arg),*)
+                }
+                #[target_feature(enable = "avx2,fma")]
+                fn v3($($arg: $ty),*) {
+                    imp($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    // SAFETY: the CPU has AVX-512F (checked just above).
+                    return unsafe { v4($($arg),*) };
+                }
+                if std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+                {
+                    // SAFETY: the CPU has AVX2 and FMA (checked just above).
+                    return unsafe { v3($($arg),*) };
+                }
+            }
+            imp($($arg),*)
+        }
+    };
+}
+pub(crate) use simd_fn;
+
+simd_fn! {
+    /// Applies `act` in place (the exponential is [`exp`]'s polynomial, which vectorises).
+    pub fn activate(v: &mut [f32], act: Activation) {
+        match act {
+            Activation::Identity => {}
+            Activation::Relu => v.iter_mut().for_each(|x| *x = x.max(0.0)),
+            Activation::Relu6 => v.iter_mut().for_each(|x| *x = x.clamp(0.0, 6.0)),
+            // min(x, 0) keeps the exponential finite; the select vectorises.
+            Activation::Elu => v.iter_mut().for_each(|x| {
+                let e = exp(x.min(0.0)) - 1.0;
+                *x = if *x < 0.0 { e } else { *x };
+            }),
+            Activation::Sigmoid => v.iter_mut().for_each(|x| *x = 1.0 / (1.0 + exp(-*x))),
+        }
+    }
+}
+
+simd_fn! {
+    /// `acc[i] += x[i]`.
+    pub fn add_assign(acc: &mut [f32], x: &[f32]) {
+        for (a, &b) in acc.iter_mut().zip(x) {
+            *a += b;
+        }
+    }
+}
+
+simd_fn! {
+    /// `acc[i] = max(acc[i], x[i])`.
+    fn max_assign(acc: &mut [f32], x: &[f32]) {
+        for (a, &b) in acc.iter_mut().zip(x) {
+            *a = a.max(b);
+        }
+    }
+}
+
+simd_fn! {
+    /// `out[i] = a0·x0[i] + a1·x1[i]`.
+    fn blend(out: &mut [f32], x0: &[f32], a0: f32, x1: &[f32], a1: f32) {
+        for ((o, &p), &q) in out.iter_mut().zip(x0).zip(x1) {
+            *o = a0 * p + a1 * q;
+        }
+    }
+}
+
+/// `a += b` pixel by pixel (same size).
+pub fn add(a: &mut Nhwc, b: &NhwcView) {
+    assert_eq!(
+        [a.h, a.w, a.c],
+        [b.h, b.w, b.c],
+        "adding images of different sizes"
+    );
+    let row = a.w * a.c;
+    a.data.par_chunks_mut(row).enumerate().for_each(|(y, r)| {
+        let at = y * b.stride * b.c;
+        add_assign(r, &b.data[at..at + row]);
+    });
+}
+
+/// Max pooling with a `k×k` window (odd `k`), stride 1 and padding `k / 2` that never wins
+/// (Burn's and PyTorch's `-inf` padding): a row pass, then a column pass.
+pub fn max_pool(x: &NhwcView, k: usize) -> Nhwc {
+    let (r, c) = (k / 2, x.c);
+    let mut rows = Nhwc::zeros(x.h, x.w, c);
+    rows.data
+        .par_chunks_mut(x.w * c)
+        .enumerate()
+        .for_each(|(y, out)| {
+            for (xx, o) in out.chunks_exact_mut(c).enumerate() {
+                o.copy_from_slice(x.pixel(y, xx));
+                for j in xx.saturating_sub(r)..(xx + r + 1).min(x.w) {
+                    max_assign(o, x.pixel(y, j));
+                }
+            }
+        });
+    let mut out = Nhwc::zeros(x.h, x.w, c);
+    let row = x.w * c;
+    out.data.par_chunks_mut(row).enumerate().for_each(|(y, o)| {
+        o.copy_from_slice(&rows.data[y * row..(y + 1) * row]);
+        for i in y.saturating_sub(r)..(y + r + 1).min(x.h) {
+            max_assign(o, &rows.data[i * row..(i + 1) * row]);
+        }
+    });
+    out
+}
+
+/// Bilinear resize to `[oh, ow]` with [`super::resize_bilinear`]'s weights (PyTorch's
+/// `align_corners = False`): the column pass, then the row pass.
+pub fn resize_bilinear(x: &NhwcView, [oh, ow]: [usize; 2]) -> Nhwc {
+    use super::resize::taps;
+    let c = x.c;
+    let tx: Vec<_> = (0..ow).map(|j| taps(j, x.w, ow)).collect();
+    let mut cols = Nhwc::zeros(x.h, ow, c);
+    cols.data
+        .par_chunks_mut(ow * c)
+        .enumerate()
+        .for_each(|(y, out)| {
+            for (o, t) in out.chunks_exact_mut(c).zip(&tx) {
+                blend(o, x.pixel(y, t.i0), t.w0, x.pixel(y, t.i1), t.w1);
+            }
+        });
+    let mut out = Nhwc::zeros(oh, ow, c);
+    let row = ow * c;
+    out.data.par_chunks_mut(row).enumerate().for_each(|(y, o)| {
+        let t = taps(y, x.h, oh);
+        let r0 = &cols.data[t.i0 * row..(t.i0 + 1) * row];
+        let r1 = &cols.data[t.i1 * row..(t.i1 + 1) * row];
+        blend(o, r0, t.w0, r1, t.w1);
+    });
+    out
+}
+
+/// `eˣ` for `f32`, branch-free so that loops over it vectorise: `2ⁿ · p(r)` with
+/// `x = n ln 2 + r`, `|r| ≤ ln 2 / 2` and `p` the degree-6 Taylor polynomial (relative error
+/// below 2e-7); `x` is clamped to [−87, 88], where `eˣ` is a normal `f32`.
+#[inline(always)]
+pub fn exp(x: f32) -> f32 {
+    const LN2_HI: f32 = 0.693_359_4;
+    const LN2_LO: f32 = -2.121_944_4e-4;
+    // Adding 1.5·2²³ rounds to the nearest integer n in the low mantissa bits: no rounding
+    // call, which would keep the loop scalar.
+    const SHIFT: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 88.0);
+    let t = x * std::f32::consts::LOG2_E + SHIFT;
+    let n = t - SHIFT;
+    let r = x - n * LN2_HI - n * LN2_LO;
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let n = t.to_bits() as i32 - 0x4B40_0000;
+    p * f32::from_bits(((n + 127) as u32) << 23)
+}
+
+/// An NCHW tensor of one image (batch 1) as [`Nhwc`].
+pub fn from_nchw(data: &[f32], [c, h, w]: [usize; 3]) -> Nhwc {
+    let mut out = Nhwc::zeros(h, w, c);
+    for ch in 0..c {
+        for (i, &v) in data[ch * h * w..(ch + 1) * h * w].iter().enumerate() {
+            out.data[i * c + ch] = v;
+        }
+    }
+    out
+}
+
+/// `x` as a row-major `[c, h, w]` vector.
+pub fn to_nchw(x: &NhwcView) -> Vec<f32> {
+    let plane = x.h * x.w;
+    let mut out = vec![0.0; x.c * plane];
+    for y in 0..x.h {
+        for xx in 0..x.w {
+            for (ch, &v) in x.pixel(y, xx).iter().enumerate() {
+                out[ch * plane + y * x.w + xx] = v;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exp_is_accurate_and_saturates() {
+        for i in -8700..=8800 {
+            let x = i as f32 / 100.0;
+            let (got, want) = (exp(x), (x as f64).exp());
+            assert!(
+                ((got as f64 - want) / want).abs() < 3e-7,
+                "exp({x}) = {got}, not {want}"
+            );
+        }
+        assert!(exp(-1e30) > 0.0 && exp(1e30).is_finite() && exp(f32::NEG_INFINITY) > 0.0);
+        let mut v = vec![-100.0f32, -1.0, 0.0, 2.0, 100.0, -1e-4];
+        activate(&mut v, Activation::Elu);
+        assert_eq!(v[2..5], [0.0, 2.0, 100.0]);
+        assert!((v[0] + 1.0).abs() < 1e-7 && (v[1] - (-1.0f32).exp_m1()).abs() < 1e-7);
+        assert!((v[5] - (-1e-4f32).exp_m1()).abs() < 1e-7);
+        let mut s = vec![-100.0f32, 0.0, 100.0];
+        activate(&mut s, Activation::Sigmoid);
+        assert!(s[0] >= 0.0 && s[0] < 1e-37 && s[1] == 0.5 && s[2] == 1.0);
+    }
+}

@@ -209,8 +209,9 @@ class Sdfcnn(nn.Module):
 def sdfcnn_loss(seg, depth, labels, target, lam=0.4, ratio=0.2):
     """Eq. 21 as src/sdfcnn/loss.rs: nearest-neighbour targets at the output size."""
     h, w = seg.shape[2:]
-    labels = F.interpolate(labels[:, None].float(), size=(h, w), mode="nearest")[:, 0].long()
-    target = F.interpolate(target, size=depth.shape[2:], mode="nearest")
+    # nearest-exact: pixel centres, as src/sdfcnn/loss.rs's nearest_indices.
+    labels = F.interpolate(labels[:, None].float(), size=(h, w), mode="nearest-exact")[:, 0].long()
+    target = F.interpolate(target, size=depth.shape[2:], mode="nearest-exact")
     ce = F.cross_entropy(seg, labels, ignore_index=255)
     valid = target > 0
     r = (depth - target)[valid]

@@ -506,12 +506,26 @@ fn main() -> Result<()> {
         // PyTorch first, then ours, case by case: each ratio compares runs minutes apart.
         let reference = match (&torch, case.torch_name()) {
             (Some(t), Some(name)) => {
+                // Timed again for each case (the `-burn` ones too): a ratio compares runs
+                // minutes apart. A failure is a row, as for our backends.
                 eprintln!("{} on PyTorch ({} threads) ...", case.label(), t.threads);
-                let m = t.run(name, cli.runs, cli.warmup, case.parameters()?)?;
-                eprintln!("  median {:.0} ms (min {:.0})", m.median_ms, m.min_ms);
-                torch_info = Some((m.version.clone(), m.capability.clone(), t.threads));
-                rows.push(Row::torch(case, &m));
-                Some(m.median_ms)
+                match t.run(name, cli.runs, cli.warmup, case.parameters()?) {
+                    Ok(m) => {
+                        eprintln!("  median {:.0} ms (min {:.0})", m.median_ms, m.min_ms);
+                        torch_info = Some((m.version.clone(), m.capability.clone(), t.threads));
+                        rows.push(Row::torch(case, &m));
+                        Some(m.median_ms)
+                    }
+                    Err(e) => {
+                        eprintln!("  {e:#}");
+                        rows.push(Row {
+                            case,
+                            backend: "PyTorch".into(),
+                            cells: format!("error: {e} | | | "),
+                        });
+                        None
+                    }
+                }
             }
             _ => None,
         };

@@ -61,6 +61,10 @@ impl PackedFpfdcnn {
         })
     }
 
+    fn layers(&self) -> usize {
+        self.encoder.len() + self.detector.len() + self.descriptor.len()
+    }
+
     /// The network on one grey image in `[0, 1]`, row-major `[h, w]`, both sides multiples
     /// of the cell (16).
     pub fn forward(&self, image: &[f32], [h, w]: [usize; 2]) -> Result<PackedOutput, FpfdcnnError> {
@@ -80,9 +84,23 @@ impl PackedFpfdcnn {
             stride: w,
             data: image,
         };
-        // A panic elsewhere while holding the lock leaves only buffers behind: reuse them.
-        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
-        let (encoder, heads) = guard.split_at_mut(self.encoder.len());
+        // The shared buffers when free; fresh ones when another call holds them (a caller on
+        // a rayon worker could otherwise wait on itself). A panic while holding the lock
+        // leaves only buffers behind: they are reused.
+        let mut own = Vec::new();
+        let mut guard = match self.scratch.try_lock() {
+            Ok(g) => Some(g),
+            Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        };
+        let buffers: &mut [Scratch] = match guard.as_deref_mut() {
+            Some(shared) => shared,
+            None => {
+                own.resize_with(self.layers(), Scratch::default);
+                &mut own
+            }
+        };
+        let (encoder, heads) = buffers.split_at_mut(self.encoder.len());
         let (detector, descriptor) = heads.split_at_mut(self.detector.len());
         let x = chain(&self.encoder, x, encoder).map_err(err)?;
         let det = chain(&self.detector, x, detector).map_err(err)?;

@@ -198,7 +198,8 @@ pub fn max_pool(x: &NhwcView, k: usize) -> Nhwc {
 }
 
 /// Bilinear resize to `[oh, ow]` with [`super::resize_bilinear`]'s weights (PyTorch's
-/// `align_corners = False`): the column pass, then the row pass.
+/// `align_corners = False`): the column pass, then the row pass (Burn's version picks the
+/// cheaper order, so results differ in the last bits only).
 pub fn resize_bilinear(x: &NhwcView, [oh, ow]: [usize; 2]) -> Nhwc {
     use super::resize::taps;
     let c = x.c;

@@ -3,7 +3,8 @@
 //! Burn's CPU convolutions convert each input to NHWC, build im2col tiles and transpose the
 //! result back on every call. Here activations stay NHWC from layer to layer and every
 //! convolution is a few large matrix products (the `gemm` crate, which picks AVX2 or AVX-512
-//! microkernels at run time) straight on the zero-padded image, with no im2col buffer:
+//! microkernels at run time) straight on the zero-padded image, with no im2col buffer except
+//! for layers with very few input channels (below):
 //!
 //! * stride 1, `k×k`: in a padded image of width `Wp`, output pixel `(y, x)` of kernel row `ky`
 //!   reads the `k` consecutive pixels starting at row-major index `(y + ky)·Wp + x`, that is
@@ -32,8 +33,9 @@ const SMALL_K: usize = 32;
 /// whose zero border is written once per input size, the wide output and the im2col matrix.
 #[derive(Debug, Default)]
 pub struct Scratch {
-    /// The input size `src` was laid out for.
-    input: Option<[usize; 3]>,
+    /// The input size and convolution (`[h, w, c, k, stride, padding]`) `src` was laid out
+    /// for: a buffer is reused only by the same convolution on the same size.
+    layout: Option<[usize; 6]>,
     src: Vec<f32>,
     wide: Vec<f32>,
     col: Vec<f32>,
@@ -312,10 +314,11 @@ impl PackedConv {
         } else {
             (hp, wp)
         };
-        if scratch.input != Some([x.h, x.w, x.c]) {
+        let layout = [x.h, x.w, x.c, self.k, self.stride, p];
+        if scratch.layout != Some(layout) {
             scratch.src.clear();
             scratch.src.resize((sh * sw + self.k) * self.c, 0.0);
-            scratch.input = Some([x.h, x.w, x.c]);
+            scratch.layout = Some(layout);
         }
         let src = &mut scratch.src;
         if self.stride == 2 {
@@ -358,6 +361,8 @@ impl PackedConv {
                 )
             };
         } else {
+            // The bound the products below rely on (the layout key guarantees it).
+            assert!(src.len() >= (sh * sw + self.k) * self.c && wide.len() == rows * self.cout);
             for ky in 0..self.k {
                 // SAFETY: lhs rows r = 0..rows start at (ky·sw + r)·c and read k·c floats, the
                 // last ending at ((ky + oh)·sw + k − 1)·c ≤ (sh·sw + k)·c = src.len(); rhs is
@@ -488,6 +493,30 @@ mod tests {
         check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9
         check(9, 4, 1, 1, 0, [5, 6]); // L8, L10
         check(3, 3, 5, 1, 2, [6, 6]);
+    }
+
+    #[test]
+    fn one_scratch_shared_by_different_convolutions() {
+        let d = Device::flex();
+        let conv = |k: usize, s: usize| {
+            let c = Conv2dConfig::new([4, 6], [k, k])
+                .with_stride([s, s])
+                .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                .init(&d);
+            PackedConv::new(&c, Activation::Identity).unwrap()
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let x = Nhwc {
+            h: 8,
+            w: 10,
+            c: 4,
+            data: (0..320).map(|_| rng.random_range(-1.0..1.0)).collect(),
+        };
+        let mut scratch = Scratch::default();
+        for p in [conv(3, 1), conv(4, 2), conv(5, 1), conv(3, 1)] {
+            let shared = p.forward_view(x.view(), &mut scratch).unwrap().to_owned();
+            assert_eq!(shared, p.forward(&x).unwrap());
+        }
     }
 
     #[test]

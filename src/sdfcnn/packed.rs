@@ -293,7 +293,7 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
         let mut r1 = vec![0.0f32; c];
         let mut v = vec![0.0f32; c];
         for (label, t) in out.iter_mut().zip(&tx) {
-            // Columns first, then rows: the order of `resize_bilinear`.
+            // Columns first, then rows (as `nhwc::resize_bilinear`).
             for i in 0..c {
                 r0[i] = t.w0 * logits.pixel(ty.i0, t.i0)[i] + t.w1 * logits.pixel(ty.i0, t.i1)[i];
                 r1[i] = t.w0 * logits.pixel(ty.i1, t.i0)[i] + t.w1 * logits.pixel(ty.i1, t.i1)[i];

@@ -186,7 +186,8 @@ impl PackedConv {
             padding,
             groups,
         } = g;
-        if groups != 1 || !(stride == 1 || stride == 2) || w.len() != cout * cin * kernel * kernel {
+        let sizes = w.len() == cout * cin * kernel * kernel && bias.len() == cout;
+        if groups != 1 || !(stride == 1 || stride == 2) || !sizes {
             return Err(PackError::Unsupported(format!("{g:?}")));
         }
         // Stride 2 with an odd kernel: the same convolution with one more row and column of

@@ -283,9 +283,9 @@ impl PackedConv {
 
     /// The convolution of `x`, bias and activation included (a compact copy of
     /// [`Self::forward_view`]'s output, with buffers of its own).
-    pub fn forward(&self, x: &Nhwc) -> Result<Nhwc, PackError> {
+    pub fn forward(&self, x: &NhwcView) -> Result<Nhwc, PackError> {
         let mut scratch = Scratch::default();
-        Ok(self.forward_view(x.view(), &mut scratch)?.to_owned())
+        Ok(self.forward_view(*x, &mut scratch)?.to_owned())
     }
 
     /// The convolution of `x`, bias and activation included, computed in `scratch`, which
@@ -462,7 +462,7 @@ mod tests {
             Activation::Relu6,
         ] {
             let packed = PackedConv::new(&conv, act).unwrap();
-            let got = packed.forward(&from_nchw(&x, [cin, h, w])).unwrap();
+            let got = packed.forward(&from_nchw(&x, [cin, h, w]).view()).unwrap();
             let input = Tensor::<4>::from_data(TensorData::new(x.clone(), [1, cin, h, w]), &d);
             let y = conv.forward(input);
             let y = match act {
@@ -516,7 +516,7 @@ mod tests {
         let mut scratch = Scratch::default();
         for p in [conv(3, 1), conv(4, 2), conv(5, 1), conv(3, 1)] {
             let shared = p.forward_view(x.view(), &mut scratch).unwrap().to_owned();
-            assert_eq!(shared, p.forward(&x).unwrap());
+            assert_eq!(shared, p.forward(&x.view()).unwrap());
         }
     }
 
@@ -538,11 +538,11 @@ mod tests {
             .init(&d);
         let p = PackedConv::new(&c, Activation::Identity).unwrap();
         assert!(matches!(
-            p.forward(&Nhwc::zeros(8, 8, 3)),
+            p.forward(&Nhwc::zeros(8, 8, 3).view()),
             Err(PackError::Channels { .. })
         ));
         assert!(matches!(
-            p.forward(&Nhwc::zeros(7, 8, 2)),
+            p.forward(&Nhwc::zeros(7, 8, 2).view()),
             Err(PackError::Size { .. })
         ));
     }

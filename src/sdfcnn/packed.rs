@@ -54,7 +54,7 @@ impl Layer {
 
     fn forward(&self, x: &NhwcView) -> Result<Nhwc, PackError> {
         match self {
-            Self::Dense(c) => c.forward(&x.to_owned()),
+            Self::Dense(c) => c.forward(x),
             Self::Depthwise(c) => c.forward(x),
         }
     }

@@ -45,6 +45,13 @@ pub struct SequenceSource {
     /// `sampling = "crop"`.
     #[serde(default)]
     pub homographies: usize,
+    /// Only the frames `[first, end)` of the sequence (all when absent): frames outside are
+    /// never read, so a final held-back split stays out of training and validation alike.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<[usize; 2]>,
+    /// This sequence's validation share (`[data] val_fraction` when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub val_fraction: Option<f64>,
 }
 
 fn default_camera() -> String {
@@ -111,6 +118,22 @@ impl FpDataConfig {
             if s.repeat == 0 || s.repeat > 1000 || s.homographies > 1000 {
                 return Err(format!(
                     "data.sequences {}: repeat must be in 1..=1000 and homographies in 0..=1000",
+                    s.path.display()
+                ));
+            }
+            if let Some(v) = s.val_fraction
+                && !(0.0..1.0).contains(&v)
+            {
+                return Err(format!(
+                    "data.sequences {}: val_fraction must be in [0, 1), got {v}",
+                    s.path.display()
+                ));
+            }
+            if let Some([first, end]) = s.frames
+                && first >= end
+            {
+                return Err(format!(
+                    "data.sequences {}: frames = [{first}, {end}] must be a non-empty range [first, end)",
                     s.path.display()
                 ));
             }
@@ -515,6 +538,8 @@ mod tests {
                     camera: "fr1".into(),
                     repeat,
                     homographies: 0,
+                    frames: None,
+                    val_fraction: None,
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,
@@ -557,6 +582,8 @@ mod tests {
                 camera: cam.display().to_string(),
                 repeat: 1,
                 homographies: 0,
+                frames: None,
+                val_fraction: None,
             }],
             sampling: Sampling::Resize,
             ..Default::default()
@@ -567,6 +594,46 @@ mod tests {
             .to_string();
         assert!(err.contains("640x480") && err.contains("320x240"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_frame_range_keeps_the_other_frames_out_of_both_splits() {
+        let path =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let build = |frames: Option<[usize; 2]>, val_fraction: Option<f64>| {
+            let cfg = FpDataConfig {
+                sequences: vec![SequenceSource {
+                    path: path.clone(),
+                    camera: "fr1".into(),
+                    repeat: 1,
+                    homographies: 0,
+                    frames,
+                    val_fraction,
+                }],
+                sampling: Sampling::Resize,
+                val_fraction: 0.5,
+                ..Default::default()
+            };
+            FpDataset::build(&cfg, [120, 160], |_| {})
+        };
+        let (train, val) = build(None, None).unwrap();
+        assert_eq!((train.frames.len(), val.frames.len()), (5, 5));
+        // Frames 0-7 only, the last quarter of those for validation: 6 + 2.
+        let (train, val) = build(Some([0, 8]), Some(0.25)).unwrap();
+        assert_eq!((train.frames.len(), val.frames.len()), (6, 2));
+        assert!(train.pairs.iter().all(|p| p.a < 6 && p.b < 6));
+        assert!(val.pairs.iter().all(|p| p.a < 2 && p.b < 2));
+        for (frames, fraction, needle) in [
+            (Some([4, 11]), None, "frames = [4, 11]"),
+            (Some([5, 5]), None, "frames = [5, 5]"),
+            (None, Some(1.0), "val_fraction must be in [0, 1)"),
+        ] {
+            let err = build(frames, fraction).err().unwrap().to_string();
+            assert!(
+                err.contains(needle) && err.contains("tum_fr1_rpy_head10"),
+                "{err}"
+            );
+        }
     }
 
     #[test]

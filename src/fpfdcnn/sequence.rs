@@ -29,7 +29,28 @@ pub(super) fn open_source(
             "homographies must be at most 100 and needs sampling = \"crop\"",
         ));
     }
-    let seq = TumSequence::open(&src.path)?;
+    let mut seq = TumSequence::open(&src.path)?;
+    if let Some([first, end]) = src.frames {
+        if first >= end || end > seq.len() {
+            return Err(Error::invalid(
+                &src.path,
+                format!(
+                    "frames = [{first}, {end}] must be a non-empty range [first, end) of the sequence's {} frames",
+                    seq.len()
+                ),
+            ));
+        }
+        seq.frames.truncate(end);
+        seq.frames.drain(..first);
+    }
+    if let Some(v) = src.val_fraction
+        && !(0.0..1.0).contains(&v)
+    {
+        return Err(Error::invalid(
+            &src.path,
+            format!("val_fraction must be in [0, 1), got {v}"),
+        ));
+    }
     let camera = Camera::load(&src.camera)?;
     if !seq.has_depth() || seq.groundtruth.is_none() {
         return Err(Error::invalid(
@@ -50,7 +71,8 @@ pub(super) fn open_source(
     Ok((seq, camera))
 }
 
-/// Adds one sequence to the splits: its first frames (all but the last `val_fraction`) to
+/// Adds one sequence to the splits: its first frames (all but the last `val_fraction`, the
+/// sequence's own when it has one; frame indices count from its `frames` range) to
 /// `train`, the others to `val`, each pair to the split holding both its frames, the
 /// homography pairs of the training frames, all pairs `repeat` times.
 pub(super) fn add_sequence(
@@ -63,7 +85,8 @@ pub(super) fn add_sequence(
 ) -> Result<()> {
     let size = [train.height, train.width];
     let n = seq.len();
-    let cut = ((n as f64) * (1.0 - cfg.val_fraction)).round() as usize;
+    let val_fraction = src.val_fraction.unwrap_or(cfg.val_fraction);
+    let cut = ((n as f64) * (1.0 - val_fraction)).round() as usize;
     // Frames at the training resolution, with their Harris targets.
     let offset_train = train.frames.len();
     let offset_val = val.frames.len();

@@ -18,6 +18,7 @@
 
 pub mod config;
 pub mod correction;
+pub mod depth_alignment;
 pub mod depth_edges;
 pub mod evaluation;
 pub mod keypoints;

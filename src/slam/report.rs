@@ -91,6 +91,11 @@ pub struct TrackingReport {
     pub relocalised_frames: Vec<usize>,
     pub lost_frames: Vec<usize>,
     pub reinitialised_frames: Vec<usize>,
+    /// RGB-D: frames whose pose the dense refinement replaced, and frames where it was not kept.
+    #[serde(default)]
+    pub dense_kept: usize,
+    #[serde(default)]
+    pub dense_rejected: usize,
 }
 
 /// Everything `report.json` holds.
@@ -189,6 +194,8 @@ impl Report {
                 relocalised_frames: t.relocalised.clone(),
                 lost_frames: t.lost.clone(),
                 reinitialised_frames: t.reinitialised.clone(),
+                dense_kept: t.dense_kept,
+                dense_rejected: t.dense_rejected,
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
@@ -270,6 +277,13 @@ impl Report {
             self.tracking.lost,
             self.tracking.reinitialised
         );
+        if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
+            let _ = writeln!(
+                s,
+                "| dense refinement | kept for {} frames, not kept for {} |",
+                self.tracking.dense_kept, self.tracking.dense_rejected
+            );
+        }
         let _ = writeln!(
             s,
             "| speed | {:.2} frames/s over {:.1} s |",
@@ -442,6 +456,13 @@ impl Report {
             self.tracking.lost,
             self.tracking.reinitialised
         );
+        if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
+            let _ = writeln!(
+                s,
+                "dense refinement kept for {} frames, not kept for {}",
+                self.tracking.dense_kept, self.tracking.dense_rejected
+            );
+        }
         let _ = writeln!(s, "speed {:.2} frames/s overall; per stage:", self.fps);
         for t in self.timing.iter().filter(|t| t.calls > 0) {
             let _ = writeln!(

@@ -16,6 +16,7 @@
 //! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
 
 use super::config::SlamConfig;
+use super::depth_alignment::{DepthModel, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
 use crate::camera::Camera;
@@ -155,6 +156,13 @@ pub struct TrackingCounters {
     pub lost: Vec<usize>,
     /// Frames where a keyframe was started after a lost streak.
     pub reinitialised: Vec<usize>,
+    /// RGB-D mode: frames whose pose the dense refinement against the reference keyframe's
+    /// depth replaced ([`super::depth_alignment`]) ...
+    #[serde(default)]
+    pub dense_kept: usize,
+    /// ... and frames where it ran but did not agree with the keypoints or failed.
+    #[serde(default)]
+    pub dense_rejected: usize,
 }
 
 /// The tracking stage.
@@ -168,6 +176,8 @@ pub struct Tracker {
     /// `T_{k-1}⁻¹ T_k` of the last tracked frame.
     velocity: Pose,
     lost_streak: usize,
+    /// The reference keyframe's depth for the dense refinement, with its keyframe id.
+    dense_model: Option<(usize, DepthModel)>,
     pub counters: TrackingCounters,
 }
 
@@ -182,6 +192,7 @@ impl Tracker {
             last: None,
             velocity: Pose::identity(),
             lost_streak: 0,
+            dense_model: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -262,7 +273,10 @@ impl Tracker {
         };
         self.lost_streak = 0;
         self.reference = Some(reference_now);
-        let pose = result.pose.inverse();
+        let mut pose = result.pose.inverse();
+        if let Some(refined) = self.refine_dense(&input, reference_now, &pose) {
+            pose = refined;
+        }
         let ref_inliers = (0..corr.world.len())
             .filter(|&k| result.inliers[k] && corr.from_reference[k])
             .count();
@@ -369,13 +383,22 @@ impl Tracker {
             };
         }
         let depth = if self.monocular { None } else { input.depth };
+        let id = self.keyframes.len();
+        self.dense_model = depth.filter(|_| self.cfg.dense.enabled).map(|d| {
+            let model = DepthModel::new(
+                d,
+                &self.camera,
+                self.cfg.dense.model_step,
+                self.depth_range(),
+            );
+            (id, model)
+        });
         let data = Arc::new(KeyframeFeatures::new(
             input.features.clone(),
             depth,
             &self.camera,
             self.depth_range(),
         ));
-        let id = self.keyframes.len();
         let world = data
             .points_cam
             .iter()
@@ -426,6 +449,50 @@ impl Tracker {
                 track: data,
             }),
             events,
+        }
+    }
+
+    /// RGB-D mode: `pose` (world from frame, from the keypoints) refined against the reference
+    /// keyframe's depth, when the refinement runs, pairs enough of the frame's points and
+    /// stays within `dense.agree_*` of `pose`; `None` otherwise.
+    fn refine_dense(
+        &mut self,
+        input: &TrackInput<'_>,
+        reference: usize,
+        pose: &Pose,
+    ) -> Option<Pose> {
+        let cfg = &self.cfg.dense;
+        let depth = input.depth.filter(|_| cfg.enabled && !self.monocular)?;
+        let (id, model) = self.dense_model.as_ref()?;
+        if *id != reference {
+            return None;
+        }
+        let kf_pose = self.keyframes[reference].pose;
+        let initial = kf_pose.inverse() * pose;
+        let kept = align(
+            model,
+            depth,
+            &self.camera,
+            &initial,
+            self.depth_range(),
+            cfg,
+        )
+        .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
+        .map(|a| a.pose)
+        .filter(|refined| {
+            let change = initial.inverse() * refined;
+            change.translation.vector.norm() <= cfg.agree_translation
+                && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
+        });
+        match kept {
+            Some(refined) => {
+                self.counters.dense_kept += 1;
+                Some(renormalized(&(kf_pose * refined)))
+            }
+            None => {
+                self.counters.dense_rejected += 1;
+                None
+            }
         }
     }
 

@@ -24,6 +24,7 @@ pub struct SlamConfig {
     pub matcher: MatcherConfig,
     pub pnp: PnpSettings,
     pub tracking: TrackingConfig,
+    pub dense: DenseConfig,
     pub keyframes: KeyframeConfig,
     pub map: MapConfig,
     pub multiview: MultiviewConfig,
@@ -237,6 +238,70 @@ impl Default for TrackingConfig {
             relocalisation_candidates: 5,
             reinitialise_after: 10,
             start_at_ground_truth: true,
+        }
+    }
+}
+
+/// RGB-D mode: each tracked frame's pose refined against its reference keyframe's depth by
+/// point-to-plane ICP ([`crate::slam::depth_alignment`]), kept when it agrees with the pose
+/// from the keypoints.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DenseConfig {
+    /// Refine at all.
+    pub enabled: bool,
+    /// The keyframe's depth is kept every `model_step` pixels.
+    pub model_step: usize,
+    /// Coarse to fine: frame pixels sampled every `step`, pairs farther apart than
+    /// `max_distance` metres dropped.
+    pub levels: Vec<DenseLevel>,
+    /// Gauss-Newton iterations per level.
+    pub iterations: usize,
+    /// Point-to-plane distances beyond this (metres) are down-weighted (Huber).
+    pub huber: f64,
+    /// Fewer pairs than this: no refinement.
+    pub min_pairs: usize,
+    /// Fewer than this share of the frame's sampled points paired at the last level: not kept.
+    pub min_inlier_fraction: f64,
+    /// The refined pose is kept only within this translation (metres) and rotation (degrees)
+    /// of the pose from the keypoints.
+    pub agree_translation: f64,
+    pub agree_rotation_deg: f64,
+}
+
+/// One level of [`DenseConfig::levels`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DenseLevel {
+    pub step: usize,
+    pub max_distance: f64,
+}
+
+impl Default for DenseConfig {
+    fn default() -> Self {
+        DenseConfig {
+            enabled: false,
+            model_step: 1,
+            levels: vec![
+                DenseLevel {
+                    step: 8,
+                    max_distance: 0.1,
+                },
+                DenseLevel {
+                    step: 4,
+                    max_distance: 0.05,
+                },
+                DenseLevel {
+                    step: 2,
+                    max_distance: 0.02,
+                },
+            ],
+            iterations: 10,
+            huber: 0.01,
+            min_pairs: 500,
+            min_inlier_fraction: 0.3,
+            agree_translation: 0.03,
+            agree_rotation_deg: 2.0,
         }
     }
 }
@@ -576,6 +641,11 @@ mod tests {
             ("multiview", "range", "nan"),
             ("multiview", "min_ncc", "2"),
             ("correction", "min_similarity", "nan"),
+            ("dense", "model_step", "0"),
+            ("dense", "iterations", "1000"),
+            ("dense", "huber", "nan"),
+            ("dense", "min_inlier_fraction", "2"),
+            ("dense", "agree_rotation_deg", "-1"),
         ] {
             let text = format!("[{section}]\n{field} = {value}\n");
             let e = SlamConfig::parse(&text, Path::new("c.toml"))
@@ -585,6 +655,23 @@ mod tests {
                 e.contains("c.toml") && e.contains(&format!("{section}.{field} must be")),
                 "{text}: {e}"
             );
+        }
+        for (levels, needle) in [
+            ("[]", "dense.levels (count) must be"),
+            (
+                "[{ step = 0, max_distance = 0.1 }]",
+                "dense.levels[0].step must be",
+            ),
+            (
+                "[{ step = 4, max_distance = 0.1 }, { step = 2, max_distance = 0.0 }]",
+                "dense.levels[1].max_distance must be",
+            ),
+        ] {
+            let text = format!("[dense]\nlevels = {levels}\n");
+            let e = SlamConfig::parse(&text, Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("c.toml") && e.contains(needle), "{text}: {e}");
         }
         let shipped = include_str!("../../../configs/slam/default.toml");
         assert_eq!(

@@ -10,6 +10,7 @@ impl SlamConfig {
         self.validate_tracking()?;
         self.validate_map()?;
         self.validate_multiview()?;
+        self.validate_dense()?;
         self.validate_correction()?;
         Ok(())
     }
@@ -134,6 +135,32 @@ impl SlamConfig {
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
         }
+        Ok(())
+    }
+
+    /// Dense refinement: bounded steps, levels and iterations, positive distances.
+    fn validate_dense(&self) -> std::result::Result<(), String> {
+        let d = &self.dense;
+        count(d.model_step, 1, 64, "dense.model_step")?;
+        count(d.levels.len(), 1, 8, "dense.levels (count)")?;
+        for (i, level) in d.levels.iter().enumerate() {
+            count(level.step, 1, 64, &format!("dense.levels[{i}].step"))?;
+            pos(
+                level.max_distance,
+                &format!("dense.levels[{i}].max_distance"),
+            )?;
+        }
+        count(d.iterations, 1, 100, "dense.iterations")?;
+        pos(d.huber, "dense.huber")?;
+        count(d.min_pairs, 6, 10_000_000, "dense.min_pairs")?;
+        if !(0.0..=1.0).contains(&d.min_inlier_fraction) {
+            return Err(format!(
+                "dense.min_inlier_fraction must be in [0, 1], got {}",
+                d.min_inlier_fraction
+            ));
+        }
+        pos(d.agree_translation, "dense.agree_translation")?;
+        pos(d.agree_rotation_deg, "dense.agree_rotation_deg")?;
         Ok(())
     }
 

@@ -49,6 +49,8 @@ pub enum OpImpl {
     ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
     /// * flex: only 1×1 stride-1 convolutions (a plain matrix product, 3–5× faster forward +
     ///   backward on flex too) and, without autodiff, the max pool (2×).
+    /// * stride-1 max pools with autodiff on either CPU backend: [`crate::nn::pool_kernel`]
+    ///   ([`pool_path`]).
     /// * the GPU backends (wgpu, cuda): 1×1 convolutions as matrix products too, Burn's own
     ///   kernels otherwise. Burn 0.22.1's wgpu 1×1 convolution returns a tensor that later
     ///   in-place element-wise ops read wrongly (SDFCNN's one-channel depth head gave an L1
@@ -133,13 +135,27 @@ pub fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
     }
 }
 
-/// Whether [`crate::nn::max_pool2d`] takes the composite path on `device` under the current
-/// [`OpImpl`].
-pub fn pool_uses_composite(device: &Device) -> bool {
+/// How [`crate::nn::max_pool2d`] computes a stride-1 max pool.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoolPath {
+    /// The backend's own kernel.
+    Burn,
+    /// [`crate::nn::pool::max_pool2d_shifted`]: running maxima over shifted slices.
+    Shifted,
+    /// [`crate::nn::pool_kernel::max_pool2d_same`]: row then column maxima, one byte per
+    /// output for a backward pass of its own (odd square windows with `k/2` padding).
+    Kernel,
+}
+
+/// Which [`PoolPath`] [`crate::nn::max_pool2d`] takes on `device` under the current
+/// [`OpImpl`]: on the CPU backends with autodiff (training) this crate's kernel, without
+/// autodiff the shifted slices, on the GPU Burn's kernel.
+pub fn pool_path(device: &Device) -> PoolPath {
     match op_impl() {
-        OpImpl::Auto => is_cpu(device) && (is_ndarray(device) || !device.is_autodiff()),
-        OpImpl::Burn => false,
-        OpImpl::Composite => true,
+        OpImpl::Auto if is_cpu(device) && device.is_autodiff() => PoolPath::Kernel,
+        OpImpl::Auto if is_cpu(device) => PoolPath::Shifted,
+        OpImpl::Auto | OpImpl::Burn => PoolPath::Burn,
+        OpImpl::Composite => PoolPath::Shifted,
     }
 }
 
@@ -579,8 +595,9 @@ mod tests {
         assert_eq!(on(&d), [true, false, true]);
         assert_eq!(on(&Device::flex()), [true, false, false]);
         assert_eq!(on(&Device::flex().autodiff()), [true, false, false]);
-        assert!(pool_uses_composite(&d) && pool_uses_composite(&d.clone().autodiff()));
-        assert!(pool_uses_composite(&Device::flex()));
-        assert!(!pool_uses_composite(&Device::flex().autodiff()));
+        assert_eq!(pool_path(&d), PoolPath::Shifted);
+        assert_eq!(pool_path(&d.clone().autodiff()), PoolPath::Kernel);
+        assert_eq!(pool_path(&Device::flex()), PoolPath::Shifted);
+        assert_eq!(pool_path(&Device::flex().autodiff()), PoolPath::Kernel);
     }
 }

@@ -11,6 +11,7 @@ pub mod packed_conv;
 pub mod packed_depthwise;
 pub mod params;
 pub mod pool;
+pub mod pool_kernel;
 pub mod resize;
 pub mod shuffle;
 pub mod trace;

@@ -15,6 +15,10 @@
 //! `≫2`, then an overlapping `≫1`), three `max_pair`s per axis instead of four. Its autodiff
 //! backward is masks and slice assignments.
 //!
+//! Training (autodiff on a CPU backend) takes [`super::pool_kernel`] instead, whose backward
+//! allocates nothing per slice; the slices serve the CPU backends without autodiff (Burn's
+//! SDFCNN path; the packed network pools in NHWC) and any window the kernel does not take.
+//!
 //! Ties: `max_pair` keeps its first operand when equal, every step pairs an earlier window with
 //! a later one, and rows are reduced before columns, so the gradient goes to the first maximum
 //! in row-major order — the tap burn-ndarray's pooling picks.
@@ -23,18 +27,25 @@ use burn::nn::pool::MaxPool2d;
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 
-use super::conv::{padding_pairs, pool_uses_composite};
+use super::conv::{PoolPath, padding_pairs, pool_path};
+use super::pool_kernel::{MAX_KERNEL, max_pool2d_same};
 
-/// `pool.forward(x)`, computed by [`max_pool2d_shifted`] where that is faster than the
-/// backend's kernel (see [`crate::nn::OpImpl`]) and the pool has stride 1, dilation 1 and no
-/// ceil mode; by Burn otherwise.
+/// `pool.forward(x)`, computed as [`pool_path`] says for `x`'s device when the pool has
+/// stride 1, dilation 1 and no ceil mode (and, for [`PoolPath::Kernel`], an odd square window
+/// of at most [`MAX_KERNEL`] with `k/2` padding on every side); by Burn otherwise.
 pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
     let simple = pool.stride == [1, 1] && pool.dilation == [1, 1] && !pool.ceil_mode;
-    if !simple || !pool_uses_composite(&x.device()) {
+    let path = pool_path(&x.device());
+    if !simple || path == PoolPath::Burn {
         return pool.forward(x);
     }
     let [_, _, h, w] = x.dims();
     let padding = padding_pairs(&pool.padding, [h, w], pool.kernel_size, pool.stride);
+    let [kh, kw] = pool.kernel_size;
+    let same = kh == kw && kh % 2 == 1 && kh <= MAX_KERNEL && padding == [(kh / 2, kh / 2); 2];
+    if path == PoolPath::Kernel && same {
+        return max_pool2d_same(x, kh);
+    }
     max_pool2d_shifted(x, pool.kernel_size, padding)
 }
 

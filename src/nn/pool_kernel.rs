@@ -1,0 +1,283 @@
+//! A stride-1 "same" max pool (odd `k×k` window, `k/2` padding) with its own backward pass,
+//! as a Burn backend extension on the CPU backends: SDFCNN's chained residual pooling (5×5,
+//! sixteen times per forward pass) when training.
+//!
+//! Burn's pool with autodiff keeps an `i64` index per output and visits all `k²` taps; the
+//! shifted slices of [`super::pool::max_pool2d_shifted`] allocate a zero tensor per slice in
+//! their backward. Here the window maximum is taken along rows, then along columns (`2k`
+//! comparisons), the winning tap is kept as one byte (its offset in the window), and the
+//! backward pass scatters the output gradient through those bytes. Ties go to the first
+//! maximum in row-major order, as Burn's kernels choose.
+
+// burn-ndarray is deprecated upstream but is this crate's default backend.
+#![allow(deprecated)]
+
+use burn::backend::autodiff::Autodiff;
+use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind, unary};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, Dispatch, Flex, NdArray, TensorMetadata, backend_extension};
+use burn::prelude::*;
+use burn::tensor::{DType, TensorData};
+use rayon::prelude::*;
+
+/// The largest window: offsets in a `k×k` window must fit a byte.
+pub const MAX_KERNEL: usize = 15;
+
+/// The extension: `x` (`[N, C, H, W]`) max-pooled over `kernel × kernel` windows, stride 1,
+/// padding `kernel / 2` (padding never wins).
+#[backend_extension(Flex, NdArray, Autodiff)]
+pub trait SamePoolOps: Backend {
+    fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self>;
+}
+
+impl SamePoolOps for Flex {
+    fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self> {
+        forward::<Flex>(x, kernel).0
+    }
+}
+
+impl SamePoolOps for NdArray {
+    fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self> {
+        forward::<NdArray>(x, kernel).0
+    }
+}
+
+impl<B: Backend, C: CheckpointStrategy> SamePoolOps for Autodiff<B, C> {
+    fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self> {
+        #[derive(Debug)]
+        struct MaxPoolSame;
+
+        impl<B: Backend> Backward<B, 1> for MaxPoolSame {
+            /// The winning tap of every output and the window side.
+            type State = (Vec<u8>, usize);
+
+            fn backward(
+                self,
+                ops: Ops<Self::State, 1>,
+                grads: &mut Gradients,
+                _checkpointer: &mut Checkpointer,
+            ) {
+                let (offsets, kernel) = ops.state;
+                unary::<B, _>(ops.parents, ops.node, grads, |grad| {
+                    backward::<B>(grad, &offsets, kernel)
+                });
+            }
+        }
+
+        let guard = x.node();
+        let (out, offsets) = forward::<B>(x.into_primitive(), kernel);
+        match MaxPoolSame.prepare::<C>([guard]).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => prep.finish((offsets, kernel), out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+}
+
+/// `x` max-pooled over `kernel × kernel` windows (odd, at most [`MAX_KERNEL`]), stride 1,
+/// padding `kernel / 2`, with autodiff where `x` has it; on the CPU backends only.
+///
+/// # Panics
+/// On a kernel that is even or larger than [`MAX_KERNEL`], or a GPU tensor.
+pub fn max_pool2d_same(x: Tensor<4>, kernel: usize) -> Tensor<4> {
+    assert!(
+        kernel % 2 == 1 && kernel <= MAX_KERNEL,
+        "max_pool2d_same: kernel {kernel} must be odd and at most {MAX_KERNEL}"
+    );
+    Tensor::from_dispatch(Dispatch::max_pool_same(x.into_dispatch(), kernel))
+}
+
+/// Waits for a future that a CPU backend has already completed.
+fn ready<T>(future: impl std::future::Future<Output = T>) -> T {
+    let mut future = std::pin::pin!(future);
+    let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
+    loop {
+        if let std::task::Poll::Ready(v) = future.as_mut().poll(&mut cx) {
+            return v;
+        }
+        std::thread::yield_now();
+    }
+}
+
+/// The tensor's values as `f32`, its shape and its dtype.
+fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DType) {
+    let shape = t.shape().to_vec();
+    let dtype = t.dtype();
+    let data = ready(B::float_into_data(t)).expect("a CPU tensor reads back");
+    let v = data
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("converted to f32");
+    (v, shape, dtype)
+}
+
+fn tensor<B: Backend>(
+    v: Vec<f32>,
+    shape: Vec<usize>,
+    dtype: DType,
+    device: &B::Device,
+) -> FloatTensor<B> {
+    B::float_from_data(TensorData::new(v, shape).convert_dtype(dtype), device)
+}
+
+/// The pooled tensor and the winning tap of every output (`dy · k + dx` in its window).
+fn forward<B: Backend>(x: FloatTensor<B>, k: usize) -> (FloatTensor<B>, Vec<u8>) {
+    let device = x.device();
+    let (x, shape, dtype) = values::<B>(x);
+    let [h, w] = [shape[2], shape[3]];
+    let plane = h * w;
+    let mut out = vec![0.0f32; x.len()];
+    let mut offsets = vec![0u8; x.len()];
+    if plane > 0 {
+        out.par_chunks_mut(plane)
+            .zip(offsets.par_chunks_mut(plane))
+            .zip(x.par_chunks(plane))
+            .for_each(|((out, offsets), x)| pool_plane(x, [h, w], k, out, offsets));
+    }
+    (tensor::<B>(out, shape, dtype, &device), offsets)
+}
+
+/// The input gradient: each output's gradient added at its winning tap.
+fn backward<B: Backend>(grad: FloatTensor<B>, offsets: &[u8], k: usize) -> FloatTensor<B> {
+    let device = grad.device();
+    let (g, shape, dtype) = values::<B>(grad);
+    let [h, w] = [shape[2], shape[3]];
+    let (plane, p) = (h * w, k / 2);
+    let mut gin = vec![0.0f32; g.len()];
+    if plane > 0 {
+        gin.par_chunks_mut(plane)
+            .zip(g.par_chunks(plane))
+            .zip(offsets.par_chunks(plane))
+            .for_each(|((gin, g), offsets)| {
+                for y in 0..h {
+                    for x in 0..w {
+                        let i = y * w + x;
+                        let o = offsets[i] as usize;
+                        let (yy, xx) = (y + o / k - p, x + o % k - p);
+                        gin[yy * w + xx] += g[i];
+                    }
+                }
+            });
+    }
+    tensor::<B>(gin, shape, dtype, &device)
+}
+
+/// Whether `v` replaces the running maximum `m` (strictly greater; a NaN wins once).
+#[inline(always)]
+fn wins(v: f32, m: f32) -> bool {
+    v > m || (v.is_nan() && !m.is_nan())
+}
+
+/// One `h × w` plane: row maxima with their column, then column maxima of those.
+fn pool_plane(x: &[f32], [h, w]: [usize; 2], k: usize, out: &mut [f32], offsets: &mut [u8]) {
+    let p = k / 2;
+    let mut row_max = vec![0.0f32; h * w];
+    let mut row_arg = vec![0u8; h * w];
+    for y in 0..h {
+        let row = &x[y * w..(y + 1) * w];
+        for c in 0..w {
+            let (lo, hi) = (c.saturating_sub(p), (c + p).min(w - 1));
+            let (mut m, mut a) = (row[lo], lo);
+            for (i, &v) in row.iter().enumerate().take(hi + 1).skip(lo + 1) {
+                if wins(v, m) {
+                    m = v;
+                    a = i;
+                }
+            }
+            row_max[y * w + c] = m;
+            row_arg[y * w + c] = (a + p - c) as u8;
+        }
+    }
+    for y in 0..h {
+        let (lo, hi) = (y.saturating_sub(p), (y + p).min(h - 1));
+        let out = &mut out[y * w..(y + 1) * w];
+        let offsets = &mut offsets[y * w..(y + 1) * w];
+        let mut best = vec![lo; w];
+        out.copy_from_slice(&row_max[lo * w..(lo + 1) * w]);
+        for yy in lo + 1..=hi {
+            let r = &row_max[yy * w..(yy + 1) * w];
+            for c in 0..w {
+                if wins(r[c], out[c]) {
+                    out[c] = r[c];
+                    best[c] = yy;
+                }
+            }
+        }
+        for c in 0..w {
+            let yy = best[c];
+            offsets[c] = ((yy + p - y) * k + row_arg[yy * w + c] as usize) as u8;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Distribution;
+    use burn::tensor::module::max_pool2d;
+    use burn::tensor::ops::MaxPoolOptions;
+
+    fn values_of<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap()
+    }
+
+    /// Output and input gradient of `pool` on the autodiff version of `device`.
+    fn run(
+        device: &Device,
+        x: &Tensor<4>,
+        up: &Tensor<4>,
+        pool: impl Fn(Tensor<4>) -> Tensor<4>,
+    ) -> [Vec<f32>; 2] {
+        let device = device.clone().autodiff();
+        let x = Tensor::<4>::from_data(x.to_data(), &device).require_grad();
+        let up = Tensor::<4>::from_data(up.to_data(), &device);
+        let y = pool(x.clone());
+        let grads = (y.clone() * up).sum().backward();
+        [values_of(y), values_of(x.grad(&grads).expect("input grad"))]
+    }
+
+    #[test]
+    #[allow(deprecated)]
+    fn matches_burn_values_and_gradients_ties_included() {
+        let reference = Device::ndarray();
+        for device in [Device::ndarray(), Device::flex()] {
+            for (shape, k) in [
+                ([2, 3, 7, 9], 5),
+                ([1, 2, 4, 3], 5),
+                ([2, 2, 6, 5], 3),
+                ([1, 1, 1, 1], 5),
+            ] {
+                let x = Tensor::<4>::random(shape, Distribution::Uniform(-1.0, 1.0), &reference);
+                // After a ReLU most values are 0: whole windows tie.
+                for x in [x.clone(), burn::tensor::activation::relu(x)] {
+                    let up =
+                        Tensor::<4>::random(shape, Distribution::Uniform(0.5, 1.5), &reference);
+                    let options = MaxPoolOptions::new([k, k])
+                        .with_stride([1, 1])
+                        .with_padding([k / 2, k / 2]);
+                    let want = run(&reference, &x, &up, |x| max_pool2d(x, options.clone()));
+                    let got = run(&device, &x, &up, |x| max_pool2d_same(x, k));
+                    assert_eq!(got, want, "{shape:?} k {k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    #[allow(deprecated)]
+    fn works_without_autodiff() {
+        let d = Device::flex();
+        let x = Tensor::<4>::random([1, 2, 5, 6], Distribution::Default, &d);
+        let options = MaxPoolOptions::new([5, 5])
+            .with_stride([1, 1])
+            .with_padding([2, 2]);
+        assert_eq!(
+            values_of(max_pool2d_same(x.clone(), 5)),
+            values_of(max_pool2d(x, options))
+        );
+    }
+}

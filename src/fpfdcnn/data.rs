@@ -71,7 +71,8 @@ pub struct FpDataConfig {
     pub pairs: FpConfig,
     /// Harris corners of the resized training image: the detector targets.
     pub targets: HarrisConfig,
-    /// Share of each sequence's frames (the last ones) kept for validation.
+    /// Share of each sequence's frames (the last ones) kept for validation; a sequence's own
+    /// `val_fraction` overrides it.
     pub val_fraction: f64,
     /// Photometric augmentation of both images of a pair.
     pub augment: PhotometricAugment,

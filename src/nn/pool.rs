@@ -17,7 +17,8 @@
 //!
 //! Training (autodiff on a CPU backend) takes [`super::pool_kernel`] instead, whose backward
 //! allocates nothing per slice; the slices serve the CPU backends without autodiff (Burn's
-//! SDFCNN path; the packed network pools in NHWC) and any window the kernel does not take.
+//! SDFCNN path; the packed network pools in NHWC) and, on ndarray, windows the kernel does not
+//! take.
 //!
 //! Ties: `max_pair` keeps its first operand when equal, every step pairs an earlier window with
 //! a later one, and rows are reduced before columns, so the gradient goes to the first maximum
@@ -27,7 +28,7 @@ use burn::nn::pool::MaxPool2d;
 use burn::prelude::*;
 use burn::tensor::ops::PadMode;
 
-use super::conv::{PoolPath, padding_pairs, pool_path};
+use super::conv::{PoolPath, is_ndarray, padding_pairs, pool_path};
 use super::pool_kernel::{MAX_KERNEL, max_pool2d_same};
 
 /// `pool.forward(x)`, computed as [`pool_path`] says for `x`'s device when the pool has
@@ -43,10 +44,12 @@ pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
     let padding = padding_pairs(&pool.padding, [h, w], pool.kernel_size, pool.stride);
     let [kh, kw] = pool.kernel_size;
     let same = kh == kw && kh % 2 == 1 && kh <= MAX_KERNEL && padding == [(kh / 2, kh / 2); 2];
-    if path == PoolPath::Kernel && same {
-        return max_pool2d_same(x, kh);
+    match path {
+        PoolPath::Kernel if same => max_pool2d_same(x, kh),
+        // Other windows in training: flex's own pool, ndarray's slices, as before the kernel.
+        PoolPath::Kernel if !is_ndarray(&x.device()) => pool.forward(x),
+        _ => max_pool2d_shifted(x, pool.kernel_size, padding),
     }
-    max_pool2d_shifted(x, pool.kernel_size, padding)
 }
 
 /// Stride-1, dilation-1 max pooling of `x` (`[N, C, H, W]`) with window `[kh, kw]` and

@@ -7,7 +7,9 @@
 //! their backward. Here the window maximum is taken along rows, then along columns (`2k`
 //! comparisons), the winning tap is kept as one byte (its offset in the window), and the
 //! backward pass scatters the output gradient through those bytes. Ties go to the first
-//! maximum in row-major order, as Burn's kernels choose.
+//! maximum in row-major order, as Burn's kernels choose. A NaN wins its window (the first NaN
+//! in row-major order gets the gradient; burn-flex's pool picks the last one, burn-ndarray's
+//! skips NaNs), and the arithmetic is `f32` whatever the tensor's float type.
 
 // burn-ndarray is deprecated upstream but is this crate's default backend.
 #![allow(deprecated)]

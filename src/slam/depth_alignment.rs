@@ -1,15 +1,54 @@
 //! Depth beyond the keypoints (RGB-D mode): a tracked frame's pose refined against its
 //! reference keyframe's whole depth image by projective point-to-plane ICP, KinectFusion's
 //! association (a frame point is paired with the keyframe point its projection lands on),
-//! coarse to fine, with Huber weights. Tracking keeps the refined pose only when it agrees
+//! coarse to fine, with Huber weights. Pixels go through the camera's distortion model both
+//! ways, as everywhere else in the system. Tracking keeps the refined pose only when it agrees
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
 
 use super::config::DenseConfig;
 use crate::camera::Camera;
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
-use nalgebra::{Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 use rayon::prelude::*;
+use std::sync::Arc;
+
+/// The undistorted normalised ray `(X/Z, Y/Z)` of every pixel of a camera's images, computed
+/// once (undistortion iterates).
+pub struct Rays {
+    width: usize,
+    height: usize,
+    rays: Vec<[f64; 2]>,
+}
+
+impl Rays {
+    pub fn new(camera: &Camera) -> Self {
+        let (width, height) = (camera.width as usize, camera.height as usize);
+        let rays = (0..width * height)
+            .into_par_iter()
+            .map(|i| {
+                let n = camera.normalized(&Point2::new((i % width) as f64, (i / width) as f64));
+                [n.x, n.y]
+            })
+            .collect();
+        Rays {
+            width,
+            height,
+            rays,
+        }
+    }
+
+    /// Whether `depth` has this camera's size.
+    fn fits(&self, depth: &DepthImage) -> bool {
+        (depth.width as usize, depth.height as usize) == (self.width, self.height)
+    }
+
+    /// The camera-frame point of pixel `(u, v)` at depth `z`.
+    fn point(&self, u: usize, v: usize, z: f64) -> Vector3<f64> {
+        let [x, y] = self.rays[v * self.width + u];
+        Vector3::new(x * z, y * z, z)
+    }
+}
 
 /// A keyframe's depth as points and normals on a grid of every `step`-th pixel, in the
 /// keyframe's camera frame.
@@ -20,18 +59,29 @@ pub struct DepthModel {
     /// `None` where the depth is missing, out of range, or has no normal.
     points: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
     camera: Camera,
+    rays: Arc<Rays>,
 }
 
 impl DepthModel {
     /// The points of `depth` every `step` pixels within `range` metres, with normals from
-    /// the neighbouring grid points (none across a depth jump of more than 5 % of the depth).
-    pub fn new(depth: &DepthImage, camera: &Camera, step: usize, range: (f64, f64)) -> Self {
+    /// the neighbouring grid points (none across a depth jump of more than 5 % of the depth);
+    /// `None` when `depth` is not the size of `rays`' camera.
+    pub fn new(
+        depth: &DepthImage,
+        camera: &Camera,
+        rays: Arc<Rays>,
+        step: usize,
+        range: (f64, f64),
+    ) -> Option<Self> {
+        if !rays.fits(depth) {
+            return None;
+        }
         let step = step.max(1);
         let (width, height) = (depth.width as usize / step, depth.height as usize / step);
         let vertex = |gx: usize, gy: usize| {
             let (u, v) = (gx * step, gy * step);
             let z = f64::from(depth.data[v * depth.width as usize + u]);
-            (z > range.0 && z < range.1).then(|| back_project(camera, u as f64, v as f64, z))
+            (z > range.0 && z < range.1).then(|| rays.point(u, v, z))
         };
         let vertices: Vec<Option<Vector3<f64>>> = (0..height)
             .flat_map(|gy| (0..width).map(move |gx| (gx, gy)))
@@ -64,26 +114,22 @@ impl DepthModel {
                 points[gy * width + gx] = Some((p, n));
             }
         }
-        DepthModel {
+        Some(DepthModel {
             step,
             width,
             height,
             points,
             camera: camera.clone(),
-        }
+            rays,
+        })
     }
 
     /// The model point and normal where `p` (keyframe camera frame) projects.
     fn lookup(&self, p: &Vector3<f64>) -> Option<&(Vector3<f64>, Vector3<f64>)> {
-        if p.z <= 0.0 {
-            return None;
-        }
-        let c = &self.camera;
-        let u = c.fx * p.x / p.z + c.cx;
-        let v = c.fy * p.y / p.z + c.cy;
+        let px = self.camera.project(&Point3::from(*p))?;
         let (gx, gy) = (
-            (u / self.step as f64).round(),
-            (v / self.step as f64).round(),
+            (px.x / self.step as f64).round(),
+            (px.y / self.step as f64).round(),
         );
         if gx < 0.0 || gy < 0.0 || gx >= self.width as f64 || gy >= self.height as f64 {
             return None;
@@ -92,35 +138,37 @@ impl DepthModel {
     }
 }
 
-fn back_project(c: &Camera, u: f64, v: f64, z: f64) -> Vector3<f64> {
-    Vector3::new((u - c.cx) * z / c.fx, (v - c.cy) * z / c.fy, z)
-}
-
 /// The outcome of [`align`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Alignment {
     /// The refined pose of the frame in the keyframe's camera frame (`T_kf_frame`).
     pub pose: Pose,
-    /// Frame points paired within the last level's distance gate.
+    /// Frame points paired within the last level's distance gate, at the pose of the last
+    /// Gauss-Newton step (the returned pose is that step's result).
     pub inliers: usize,
     /// Frame points with a valid depth at the last level.
     pub points: usize,
-    /// Root mean square of the inliers' point-to-plane distances, metres.
+    /// Root mean square of those pairs' point-to-plane distances, metres.
     pub rms: f64,
 }
 
 /// Refines `initial` (`T_kf_frame`) by point-to-plane ICP of the frame's depth against
 /// `model`, one level per entry of `cfg.levels` (frame pixels sampled every `step`, pairs
-/// farther apart than `max_distance` dropped). `None` when too few pairs remain or the
-/// system is degenerate (a single plane leaves directions unconstrained).
+/// farther apart than `max_distance` dropped). `None` when `depth` is not the camera's size,
+/// too few pairs remain, or the system is degenerate (a single plane leaves directions
+/// unconstrained; a near-degenerate one, a wall with a little clutter, is not caught here,
+/// and the caller's agreement with the keypoint pose bounds what it can do).
 pub fn align(
     model: &DepthModel,
     depth: &DepthImage,
-    camera: &Camera,
     initial: &Pose,
     range: (f64, f64),
     cfg: &DenseConfig,
 ) -> Option<Alignment> {
+    let rays = &model.rays;
+    if !rays.fits(depth) {
+        return None;
+    }
     let mut pose = *initial;
     let mut last = None;
     for level in &cfg.levels {
@@ -130,7 +178,7 @@ pub fn align(
             .flat_map(|v| (0..depth.width as usize).step_by(step).map(move |u| (u, v)))
             .filter_map(|(u, v)| {
                 let z = f64::from(depth.data[v * depth.width as usize + u]);
-                (z > range.0 && z < range.1).then(|| back_project(camera, u as f64, v as f64, z))
+                (z > range.0 && z < range.1).then(|| rays.point(u, v, z))
             })
             .collect();
         for _ in 0..cfg.iterations {
@@ -235,7 +283,8 @@ mod tests {
         let origin = pose.translation.vector;
         for v in 0..h {
             for u in 0..w {
-                let ray_cam = back_project(camera, u as f64, v as f64, 1.0);
+                let n = camera.normalized(&Point2::new(u as f64, v as f64));
+                let ray_cam = Vector3::new(n.x, n.y, 1.0);
                 let ray = pose.rotation * ray_cam;
                 let mut best = f64::INFINITY;
                 for (n, d) in &planes {
@@ -278,13 +327,14 @@ mod tests {
             min_pairs: 100,
             ..DenseConfig::default()
         };
-        let model = DepthModel::new(&kf_depth, &camera, 1, range);
+        let rays = Arc::new(Rays::new(&camera));
+        let model = DepthModel::new(&kf_depth, &camera, rays, 1, range).unwrap();
         let truth = kf_pose.inverse() * frame_pose;
         let start = Pose::from_parts(
             Translation3::new(0.01, -0.01, 0.03),
             UnitQuaternion::from_euler_angles(0.01, -0.015, 0.0),
         );
-        let a = align(&model, &frame_depth, &camera, &start, range, &cfg).expect("aligned");
+        let a = align(&model, &frame_depth, &start, range, &cfg).expect("aligned");
         let err = truth.inverse() * a.pose;
         assert!(
             err.translation.vector.norm() < 2e-3 && err.rotation.angle() < 1e-3,
@@ -301,15 +351,20 @@ mod tests {
         let mut depth = DepthImage::new(camera.width, camera.height);
         depth.data.fill(2.0);
         let range = (0.1, 6.0);
-        let model = DepthModel::new(&depth, &camera, 1, range);
-        let a = align(
-            &model,
-            &depth,
-            &camera,
-            &Pose::identity(),
-            range,
-            &DenseConfig::default(),
-        );
+        let model = DepthModel::new(&depth, &camera, Arc::new(Rays::new(&camera)), 1, range)
+            .expect("the camera's size");
+        let cfg = DenseConfig {
+            min_pairs: 100,
+            ..DenseConfig::default()
+        };
+        // Enough pairs (every frame point lands on the plane), but sliding along the plane
+        // and turning about its normal are unconstrained.
+        let a = align(&model, &depth, &Pose::identity(), range, &cfg);
         assert!(a.is_none(), "{a:?}");
+        // A depth image of another size than the camera's: no model, no alignment.
+        let small = DepthImage::new(80, 60);
+        let rays = Arc::new(Rays::new(&camera));
+        assert!(DepthModel::new(&small, &camera, rays, 1, range).is_none());
+        assert!(align(&model, &small, &Pose::identity(), range, &cfg).is_none());
     }
 }

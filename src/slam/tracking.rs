@@ -16,7 +16,7 @@
 //! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
 
 use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, align};
+use super::depth_alignment::{DepthModel, Rays, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
 use crate::camera::Camera;
@@ -178,6 +178,8 @@ pub struct Tracker {
     lost_streak: usize,
     /// The reference keyframe's depth for the dense refinement, with its keyframe id.
     dense_model: Option<(usize, DepthModel)>,
+    /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
+    rays: Option<Arc<Rays>>,
     pub counters: TrackingCounters,
 }
 
@@ -193,6 +195,7 @@ impl Tracker {
             velocity: Pose::identity(),
             lost_streak: 0,
             dense_model: None,
+            rays: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -384,15 +387,14 @@ impl Tracker {
         }
         let depth = if self.monocular { None } else { input.depth };
         let id = self.keyframes.len();
-        self.dense_model = depth.filter(|_| self.cfg.dense.enabled).map(|d| {
-            let model = DepthModel::new(
-                d,
-                &self.camera,
-                self.cfg.dense.model_step,
-                self.depth_range(),
-            );
-            (id, model)
-        });
+        self.dense_model = None;
+        if let Some(d) = depth.filter(|_| self.cfg.dense.enabled) {
+            let camera = &self.camera;
+            let rays = self.rays.get_or_insert_with(|| Arc::new(Rays::new(camera)));
+            let step = self.cfg.dense.model_step;
+            self.dense_model = DepthModel::new(d, camera, rays.clone(), step, self.depth_range())
+                .map(|model| (id, model));
+        }
         let data = Arc::new(KeyframeFeatures::new(
             input.features.clone(),
             depth,
@@ -454,7 +456,9 @@ impl Tracker {
 
     /// RGB-D mode: `pose` (world from frame, from the keypoints) refined against the reference
     /// keyframe's depth, when the refinement runs, pairs enough of the frame's points and
-    /// stays within `dense.agree_*` of `pose`; `None` otherwise.
+    /// stays within `dense.agree_*` of `pose`; `None` otherwise. Frames tracked against an
+    /// older keyframe after relocalisation are not refined (nor counted) until the next
+    /// keyframe: only the newest keyframe's depth is kept.
     fn refine_dense(
         &mut self,
         input: &TrackInput<'_>,
@@ -469,21 +473,14 @@ impl Tracker {
         }
         let kf_pose = self.keyframes[reference].pose;
         let initial = kf_pose.inverse() * pose;
-        let kept = align(
-            model,
-            depth,
-            &self.camera,
-            &initial,
-            self.depth_range(),
-            cfg,
-        )
-        .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
-        .map(|a| a.pose)
-        .filter(|refined| {
-            let change = initial.inverse() * refined;
-            change.translation.vector.norm() <= cfg.agree_translation
-                && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
-        });
+        let kept = align(model, depth, &initial, self.depth_range(), cfg)
+            .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
+            .map(|a| a.pose)
+            .filter(|refined| {
+                let change = initial.inverse() * refined;
+                change.translation.vector.norm() <= cfg.agree_translation
+                    && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
+            });
         match kept {
             Some(refined) => {
                 self.counters.dense_kept += 1;

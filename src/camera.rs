@@ -283,6 +283,46 @@ impl Camera {
     }
 }
 
+/// Undistorted normalised coordinates `(X/Z, Y/Z)` of every `stride`-th pixel of a camera's
+/// images, row by row (undistortion iterates: done once, looked up per frame).
+#[derive(Debug, Clone)]
+pub struct RayTable {
+    pub stride: u32,
+    /// Samples per row and per column: the image size divided by `stride`, rounded up.
+    pub width: u32,
+    pub height: u32,
+    pub rays: Vec<[f64; 2]>,
+}
+
+impl RayTable {
+    pub fn new(camera: &Camera, stride: u32) -> Self {
+        let stride = stride.max(1);
+        let (w, h) = (
+            camera.width.div_ceil(stride),
+            camera.height.div_ceil(stride),
+        );
+        let mut rays = Vec::with_capacity((w * h) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let n = camera.normalized(&Point2::new((x * stride) as f64, (y * stride) as f64));
+                rays.push([n.x, n.y]);
+            }
+        }
+        RayTable {
+            stride,
+            width: w,
+            height: h,
+            rays,
+        }
+    }
+
+    /// The camera-frame point of sample `(x, y)` at z-depth `z`.
+    pub fn point(&self, x: usize, y: usize, z: f64) -> Point3<f64> {
+        let [nx, ny] = self.rays[y * self.width as usize + x];
+        Point3::new(nx * z, ny * z, z)
+    }
+}
+
 /// A TOML error with the file, and the line when the parser knows it.
 ///
 /// Public so that config readers outside the library (the `train` application's sweeps)

@@ -6,48 +6,18 @@
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
 
 use super::config::DenseConfig;
-use crate::camera::Camera;
+use super::map::ViewBounds;
+use super::pose_graph::se3_exp;
+use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
-use nalgebra::{Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 use std::sync::Arc;
 
-/// The undistorted normalised ray `(X/Z, Y/Z)` of every pixel of a camera's images, computed
-/// once (undistortion iterates).
-pub struct Rays {
-    width: usize,
-    height: usize,
-    rays: Vec<[f64; 2]>,
-}
-
-impl Rays {
-    pub fn new(camera: &Camera) -> Self {
-        let (width, height) = (camera.width as usize, camera.height as usize);
-        let rays = (0..width * height)
-            .into_par_iter()
-            .map(|i| {
-                let n = camera.normalized(&Point2::new((i % width) as f64, (i / width) as f64));
-                [n.x, n.y]
-            })
-            .collect();
-        Rays {
-            width,
-            height,
-            rays,
-        }
-    }
-
-    /// Whether `depth` has this camera's size.
-    fn fits(&self, depth: &DepthImage) -> bool {
-        (depth.width as usize, depth.height as usize) == (self.width, self.height)
-    }
-
-    /// The camera-frame point of pixel `(u, v)` at depth `z`.
-    fn point(&self, u: usize, v: usize, z: f64) -> Vector3<f64> {
-        let [x, y] = self.rays[v * self.width + u];
-        Vector3::new(x * z, y * z, z)
-    }
+/// Whether `depth` has the size of `rays`' images (sampled at stride 1).
+fn fits(rays: &RayTable, depth: &DepthImage) -> bool {
+    rays.stride == 1 && (depth.width, depth.height) == (rays.width, rays.height)
 }
 
 /// A keyframe's depth as points and normals on a grid of every `step`-th pixel, in the
@@ -59,21 +29,23 @@ pub struct DepthModel {
     /// `None` where the depth is missing, out of range, or has no normal.
     points: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
     camera: Camera,
-    rays: Arc<Rays>,
+    /// Where projecting is reliable (the distortion polynomial folds back beyond).
+    bounds: ViewBounds,
+    rays: Arc<RayTable>,
 }
 
 impl DepthModel {
     /// The points of `depth` every `step` pixels within `range` metres, with normals from
     /// the neighbouring grid points (none across a depth jump of more than 5 % of the depth);
-    /// `None` when `depth` is not the size of `rays`' camera.
+    /// `None` when `depth` is not the size of `rays`' images (a table of `camera` at stride 1).
     pub fn new(
         depth: &DepthImage,
         camera: &Camera,
-        rays: Arc<Rays>,
+        rays: Arc<RayTable>,
         step: usize,
         range: (f64, f64),
     ) -> Option<Self> {
-        if !rays.fits(depth) {
+        if !fits(&rays, depth) {
             return None;
         }
         let step = step.max(1);
@@ -81,7 +53,7 @@ impl DepthModel {
         let vertex = |gx: usize, gy: usize| {
             let (u, v) = (gx * step, gy * step);
             let z = f64::from(depth.data[v * depth.width as usize + u]);
-            (z > range.0 && z < range.1).then(|| rays.point(u, v, z))
+            (z > range.0 && z < range.1).then(|| rays.point(u, v, z).coords)
         };
         let vertices: Vec<Option<Vector3<f64>>> = (0..height)
             .flat_map(|gy| (0..width).map(move |gx| (gx, gy)))
@@ -120,13 +92,18 @@ impl DepthModel {
             height,
             points,
             camera: camera.clone(),
+            bounds: ViewBounds::new(camera),
             rays,
         })
     }
 
     /// The model point and normal where `p` (keyframe camera frame) projects.
     fn lookup(&self, p: &Vector3<f64>) -> Option<&(Vector3<f64>, Vector3<f64>)> {
-        let px = self.camera.project(&Point3::from(*p))?;
+        let p = Point3::from(*p);
+        if !self.bounds.contains(&p) {
+            return None;
+        }
+        let px = self.camera.project(&p)?;
         let (gx, gy) = (
             (px.x / self.step as f64).round(),
             (px.y / self.step as f64).round(),
@@ -166,7 +143,7 @@ pub fn align(
     cfg: &DenseConfig,
 ) -> Option<Alignment> {
     let rays = &model.rays;
-    if !rays.fits(depth) {
+    if !fits(rays, depth) {
         return None;
     }
     let mut pose = *initial;
@@ -178,7 +155,7 @@ pub fn align(
             .flat_map(|v| (0..depth.width as usize).step_by(step).map(move |u| (u, v)))
             .filter_map(|(u, v)| {
                 let z = f64::from(depth.data[v * depth.width as usize + u]);
-                (z > range.0 && z < range.1).then(|| rays.point(u, v, z))
+                (z > range.0 && z < range.1).then(|| rays.point(u, v, z).coords)
             })
             .collect();
         for _ in 0..cfg.iterations {
@@ -193,7 +170,7 @@ pub fn align(
                 return None;
             }
             let delta = h.cholesky()?.solve(&(-g));
-            pose = renormalized(&(exp_se3(&delta) * pose));
+            pose = renormalized(&(se3_exp(&delta) * pose));
             last = Some((inliers, source.len(), sq));
             if delta.norm() < 1e-5 {
                 break;
@@ -254,19 +231,11 @@ fn normal_equations(
     )
 }
 
-/// The rigid motion of the twist `δ = (v, ω)` (translation first), as a pose.
-fn exp_se3(delta: &Vector6<f64>) -> Pose {
-    let v = Vector3::new(delta[0], delta[1], delta[2]);
-    let w = Vector3::new(delta[3], delta[4], delta[5]);
-    let rotation = UnitQuaternion::from_scaled_axis(w);
-    // Small steps: the translation's left Jacobian is close to the identity.
-    Pose::from_parts(Translation3::from(v), rotation)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::slam::config::DenseConfig;
+    use nalgebra::{Point2, Translation3, UnitQuaternion};
 
     /// Depth of a box room seen from `pose` (world from camera): floor, walls, and a block,
     /// so that every direction is constrained.
@@ -327,7 +296,7 @@ mod tests {
             min_pairs: 100,
             ..DenseConfig::default()
         };
-        let rays = Arc::new(Rays::new(&camera));
+        let rays = Arc::new(RayTable::new(&camera, 1));
         let model = DepthModel::new(&kf_depth, &camera, rays, 1, range).unwrap();
         let truth = kf_pose.inverse() * frame_pose;
         let start = Pose::from_parts(
@@ -351,8 +320,14 @@ mod tests {
         let mut depth = DepthImage::new(camera.width, camera.height);
         depth.data.fill(2.0);
         let range = (0.1, 6.0);
-        let model = DepthModel::new(&depth, &camera, Arc::new(Rays::new(&camera)), 1, range)
-            .expect("the camera's size");
+        let model = DepthModel::new(
+            &depth,
+            &camera,
+            Arc::new(RayTable::new(&camera, 1)),
+            1,
+            range,
+        )
+        .expect("the camera's size");
         let cfg = DenseConfig {
             min_pairs: 100,
             ..DenseConfig::default()
@@ -363,7 +338,7 @@ mod tests {
         assert!(a.is_none(), "{a:?}");
         // A depth image of another size than the camera's: no model, no alignment.
         let small = DepthImage::new(80, 60);
-        let rays = Arc::new(Rays::new(&camera));
+        let rays = Arc::new(RayTable::new(&camera, 1));
         assert!(DepthModel::new(&small, &camera, rays, 1, range).is_none());
         assert!(align(&model, &small, &Pose::identity(), range, &cfg).is_none());
     }

@@ -7,10 +7,10 @@
 
 use super::config::{LabelVoteConfig, MapConfig};
 use super::map::KeyFrame;
-use crate::camera::Camera;
+use crate::camera::{Camera, RayTable};
 use crate::classes;
 use crate::geometry::Pose;
-use nalgebra::{Point2, Point3};
+use nalgebra::Point3;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 /// The accumulated observations of one voxel.
@@ -70,37 +70,6 @@ pub struct MapPoint {
     pub position: Point3<f32>,
     pub rgb: [u8; 3],
     pub label: u8,
-}
-
-/// Normalised image coordinates of every `stride`-th pixel (undistortion done once).
-#[derive(Debug, Clone)]
-struct RayTable {
-    stride: u32,
-    width: u32,
-    height: u32,
-    rays: Vec<[f64; 2]>,
-}
-
-impl RayTable {
-    fn new(camera: &Camera, stride: u32) -> Self {
-        let (w, h) = (
-            camera.width.div_ceil(stride),
-            camera.height.div_ceil(stride),
-        );
-        let mut rays = Vec::with_capacity((w * h) as usize);
-        for y in 0..h {
-            for x in 0..w {
-                let n = camera.normalized(&Point2::new((x * stride) as f64, (y * stride) as f64));
-                rays.push([n.x, n.y]);
-            }
-        }
-        RayTable {
-            stride,
-            width: w,
-            height: h,
-            rays,
-        }
-    }
 }
 
 /// The voxel grid.

@@ -16,10 +16,10 @@
 //! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
 
 use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, Rays, align};
+use super::depth_alignment::{DepthModel, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
-use crate::camera::Camera;
+use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
 use crate::pnp::{PnpResult, solve_pnp_ransac};
@@ -179,7 +179,7 @@ pub struct Tracker {
     /// The reference keyframe's depth for the dense refinement, with its keyframe id.
     dense_model: Option<(usize, DepthModel)>,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
-    rays: Option<Arc<Rays>>,
+    rays: Option<Arc<RayTable>>,
     pub counters: TrackingCounters,
 }
 
@@ -390,7 +390,9 @@ impl Tracker {
         self.dense_model = None;
         if let Some(d) = depth.filter(|_| self.cfg.dense.enabled) {
             let camera = &self.camera;
-            let rays = self.rays.get_or_insert_with(|| Arc::new(Rays::new(camera)));
+            let rays = self
+                .rays
+                .get_or_insert_with(|| Arc::new(RayTable::new(camera, 1)));
             let step = self.cfg.dense.model_step;
             self.dense_model = DepthModel::new(d, camera, rays.clone(), step, self.depth_range())
                 .map(|model| (id, model));

@@ -113,7 +113,7 @@ fn window_max(t: Tensor<3>, k: usize, step: usize) -> Tensor<3> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use burn::tensor::Distribution;
     use burn::tensor::module::max_pool2d as burn_max_pool2d;
@@ -124,12 +124,12 @@ mod tests {
         Device::ndarray()
     }
 
-    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    pub(in crate::nn) fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.into_data().try_to_vec::<f32>().expect("f32 tensor")
     }
 
     /// Output and input gradient of `pool` on the autodiff version of `device`.
-    fn run(
+    pub(in crate::nn) fn run(
         device: &Device,
         x: &Tensor<4>,
         upstream: &Tensor<4>,

@@ -176,6 +176,7 @@ fn pool_plane(x: &[f32], [h, w]: [usize; 2], k: usize, out: &mut [f32], offsets:
     let p = k / 2;
     let mut row_max = vec![0.0f32; h * w];
     let mut row_arg = vec![0u8; h * w];
+    let mut best = vec![0usize; w];
     for y in 0..h {
         let row = &x[y * w..(y + 1) * w];
         for c in 0..w {
@@ -195,7 +196,7 @@ fn pool_plane(x: &[f32], [h, w]: [usize; 2], k: usize, out: &mut [f32], offsets:
         let (lo, hi) = (y.saturating_sub(p), (y + p).min(h - 1));
         let out = &mut out[y * w..(y + 1) * w];
         let offsets = &mut offsets[y * w..(y + 1) * w];
-        let mut best = vec![lo; w];
+        best.fill(lo);
         out.copy_from_slice(&row_max[lo * w..(lo + 1) * w]);
         for yy in lo + 1..=hi {
             let r = &row_max[yy * w..(yy + 1) * w];
@@ -216,31 +217,10 @@ fn pool_plane(x: &[f32], [h, w]: [usize; 2], k: usize, out: &mut [f32], offsets:
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nn::pool::tests::{run, values as values_of};
     use burn::tensor::Distribution;
     use burn::tensor::module::max_pool2d;
     use burn::tensor::ops::MaxPoolOptions;
-
-    fn values_of<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-        t.into_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .unwrap()
-    }
-
-    /// Output and input gradient of `pool` on the autodiff version of `device`.
-    fn run(
-        device: &Device,
-        x: &Tensor<4>,
-        up: &Tensor<4>,
-        pool: impl Fn(Tensor<4>) -> Tensor<4>,
-    ) -> [Vec<f32>; 2] {
-        let device = device.clone().autodiff();
-        let x = Tensor::<4>::from_data(x.to_data(), &device).require_grad();
-        let up = Tensor::<4>::from_data(up.to_data(), &device);
-        let y = pool(x.clone());
-        let grads = (y.clone() * up).sum().backward();
-        [values_of(y), values_of(x.grad(&grads).expect("input grad"))]
-    }
 
     #[test]
     #[allow(deprecated)]

@@ -61,7 +61,7 @@ struct Args {
 fn targets(checkpoint: &std::path::Path) -> Result<HarrisConfig> {
     let (_, cfg_path) = sdf_slam::training::resolve_checkpoint(checkpoint)?;
     let text = sdf_slam::io::read_text(&cfg_path)?;
-    let cfg = sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
+    let cfg = sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse_saved(&text, &cfg_path)?;
     Ok(cfg.data.targets)
 }
 

@@ -363,7 +363,7 @@ fn corpus() -> Vec<Case> {
         case("1x1 images", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "1x1"])
             .file(
                 "t.toml",
-                &tiny_training_config("height = 96\nwidth = 128", "height = 1\nwidth = 1"),
+                &tiny_training_config("size = [96, 128]", "size = [1, 1]"),
             ),
         case("NaN learning rate", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "learning rate"])
             .file("t.toml", &tiny_training_config("lr = 0.001", "lr = nan")),

@@ -11,13 +11,16 @@ model = "fpfdcnn"
 seed = 7
 epochs = 2
 batch_size = 2
-height = 32
-width = 48
+
+[optimizer]
 lr = 0.001
-pairs_per_epoch = 4
+
+[network]
 descriptor_dim = 32
 
 [data]
+size = [32, 48]
+pairs_per_epoch = 4
 val_fraction = 0.3
 
 [[data.sequences]]
@@ -137,7 +140,7 @@ fn bad_configs_are_clear_errors() {
     assert!(e.contains("x.toml:") && e.contains("learning_rate"), "{e}");
     let e = sdf_slam::fpfdcnn::training::run(
         Path::new("x.toml"),
-        &CONFIG.replace("height = 32", "height = 30"),
+        &CONFIG.replace("size = [32, 48]", "size = [30, 48]"),
         &opts,
     )
     .unwrap_err()

@@ -67,6 +67,12 @@ fn default_repeat() -> usize {
 #[serde(default, deny_unknown_fields)]
 pub struct FpDataConfig {
     pub sequences: Vec<SequenceSource>,
+    /// Training image size `[height, width]` (multiples of 16).
+    pub size: [usize; 2],
+    /// At most this many training pairs an epoch, drawn in the seeded order (0: all).
+    pub pairs_per_epoch: usize,
+    /// Validate on at most this many pairs, spread evenly over the validation split (0: all).
+    pub val_pairs: usize,
     /// Frame pairs and ground-truth matching (gaps, Harris corners of A, occlusion test).
     pub pairs: FpConfig,
     /// Harris corners of the resized training image: the detector targets.
@@ -101,6 +107,17 @@ impl FpDataConfig {
     /// Checks what the config alone decides (the data is checked when it is read); the
     /// message names the field.
     pub fn validate(&self) -> std::result::Result<(), String> {
+        let [h, w] = self.size;
+        if h == 0 || w == 0 || !h.is_multiple_of(16) || !w.is_multiple_of(16) {
+            return Err(format!(
+                "data.size {h}x{w} must be non-zero multiples of 16 (height, width)"
+            ));
+        }
+        if h > MAX_SIDE || w > MAX_SIDE {
+            return Err(format!(
+                "data.size {h}x{w} must be at most {MAX_SIDE} pixels a side"
+            ));
+        }
         if !(0.0..1.0).contains(&self.val_fraction) {
             return Err(format!(
                 "data.val_fraction must be in [0, 1), got {}",
@@ -143,10 +160,21 @@ impl FpDataConfig {
     }
 }
 
+/// The default training image size `[height, width]`.
+pub fn default_size() -> [usize; 2] {
+    [240, 320]
+}
+
+/// Largest training image side, pixels.
+const MAX_SIDE: usize = 4096;
+
 impl Default for FpDataConfig {
     fn default() -> Self {
         FpDataConfig {
             sequences: Vec::new(),
+            size: default_size(),
+            pairs_per_epoch: 0,
+            val_pairs: 0,
             pairs: FpConfig::default(),
             targets: HarrisConfig {
                 max_corners: 400,

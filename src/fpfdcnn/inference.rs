@@ -232,7 +232,7 @@ impl FpfdcnnDetector {
             .map_err(|m| Error::msg(format!("FPFDCNN detector: {m}")))?;
         let (weights, cfg_path) = resolve_checkpoint(checkpoint)?;
         let text = crate::io::read_text(&cfg_path)?;
-        let train = FpfdcnnTrainConfig::parse(&text, &cfg_path)?;
+        let train = FpfdcnnTrainConfig::parse_saved(&text, &cfg_path)?;
         let device = backend.device()?;
         let model = train
             .network()

@@ -2,9 +2,6 @@
 //! and the learning-rate schedule), `[network]`, and the checks [`SdfcnnTrainConfig::parse`]
 //! makes. [`super::training`] runs it.
 
-use burn::optim::decay::WeightDecayConfig;
-use burn::optim::momentum::MomentumConfig;
-use burn::optim::{AdamConfig, ModuleOptimizer, SgdConfig};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -15,7 +12,7 @@ use super::loss::SdfcnnLossConfig;
 use crate::camera::toml_error;
 use crate::dataset::augment::AugmentConfig;
 use crate::error::{Error, Result};
-use crate::training::BackendKind;
+use crate::training::{BackendKind, OptimizerConfig};
 
 /// A complete SDFCNN training config (TOML).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -46,8 +43,12 @@ pub struct SdfcnnTrainConfig {
     pub init: Option<PathBuf>,
     /// Training and validation data.
     pub data: DataConfig,
-    /// Optimizer and learning-rate schedule.
-    #[serde(default)]
+    /// Optimizer and learning-rate schedule (SGD with momentum, 0.1 then 0.01 after epoch
+    /// 20: the paper's, unless the config says otherwise).
+    #[serde(
+        default = "OptimizerConfig::sgd_paper",
+        deserialize_with = "optimizer_over"
+    )]
     pub optimizer: OptimizerConfig,
     /// Eq. 21.
     #[serde(default)]
@@ -63,6 +64,12 @@ fn default_seed() -> u64 {
 
 fn default_keep() -> usize {
     3
+}
+
+fn optimizer_over<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<OptimizerConfig, D::Error> {
+    crate::training::optimizer::deserialize_over(d, OptimizerConfig::sgd_paper())
 }
 
 /// `[data]`.
@@ -91,124 +98,6 @@ pub struct DataConfig {
 
 fn default_size() -> [usize; 2] {
     [300, 400]
-}
-
-/// Optimizer family.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OptimizerKind {
-    /// SGD with momentum (the paper's recipe).
-    #[default]
-    Sgd,
-    /// Adam.
-    Adam,
-}
-
-/// `[optimizer]`: SGD with momentum 0.9 (PyTorch semantics: dampening 0), learning rate 0.1
-/// for the first 20 epochs, then 0.01 (Section V-C), by default.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct OptimizerConfig {
-    /// `sgd` or `adam`.
-    pub kind: OptimizerKind,
-    /// Initial learning rate.
-    pub lr: f64,
-    /// `[epoch, lr]` pairs: from that many completed epochs on, use `lr`.
-    pub lr_steps: Vec<(usize, f64)>,
-    /// SGD momentum (0 = plain SGD).
-    pub momentum: f64,
-    /// SGD momentum dampening.
-    pub dampening: f64,
-    /// Nesterov momentum.
-    pub nesterov: bool,
-    /// L2 weight decay added to the gradient (0 = none; the paper gives no value).
-    pub weight_decay: f64,
-    /// Adam β1.
-    pub beta1: f64,
-    /// Adam β2.
-    pub beta2: f64,
-    /// Adam ε.
-    pub epsilon: f64,
-    /// Clip the gradient norm of each parameter to this value.
-    pub grad_clip_norm: Option<f64>,
-}
-
-impl Default for OptimizerConfig {
-    fn default() -> Self {
-        OptimizerConfig {
-            kind: OptimizerKind::Sgd,
-            lr: 0.1,
-            lr_steps: vec![(20, 0.01)],
-            momentum: 0.9,
-            dampening: 0.0,
-            nesterov: false,
-            weight_decay: 1e-4,
-            beta1: 0.9,
-            beta2: 0.999,
-            epsilon: 1e-8,
-            grad_clip_norm: None,
-        }
-    }
-}
-
-impl OptimizerConfig {
-    /// Learning rate of epoch `epoch` (0-based).
-    pub fn lr_at(&self, epoch: usize) -> f64 {
-        self.lr_steps
-            .iter()
-            .filter(|(e, _)| *e <= epoch)
-            .max_by_key(|(e, _)| *e)
-            .map_or(self.lr, |(_, lr)| *lr)
-    }
-
-    /// The Burn optimizer.
-    pub fn init(&self) -> ModuleOptimizer {
-        let decay =
-            (self.weight_decay > 0.0).then(|| WeightDecayConfig::new(self.weight_decay as f32));
-        let clip = self
-            .grad_clip_norm
-            .map(|n| burn::grad_clipping::GradientClippingConfig::Norm(n as f32));
-        match self.kind {
-            OptimizerKind::Sgd => {
-                let momentum = (self.momentum > 0.0).then(|| {
-                    MomentumConfig::new()
-                        .with_momentum(self.momentum)
-                        .with_dampening(self.dampening)
-                        .with_nesterov(self.nesterov)
-                });
-                SgdConfig::new()
-                    .with_momentum(momentum)
-                    .with_weight_decay(decay)
-                    .with_gradient_clipping(clip)
-                    .init()
-            }
-            OptimizerKind::Adam => AdamConfig::new()
-                .with_beta_1(self.beta1 as f32)
-                .with_beta_2(self.beta2 as f32)
-                .with_epsilon(self.epsilon as f32)
-                .with_weight_decay(decay)
-                .with_grad_clipping(clip)
-                .init(),
-        }
-    }
-
-    fn validate(&self) -> std::result::Result<(), String> {
-        let lrs = std::iter::once(self.lr).chain(self.lr_steps.iter().map(|s| s.1));
-        if lrs.clone().any(|lr| !(lr > 0.0 && lr.is_finite())) {
-            return Err("optimizer learning rates must be positive".into());
-        }
-        if !(0.0..1.0).contains(&self.momentum) || !(0.0..=1.0).contains(&self.dampening) {
-            return Err("optimizer.momentum must be in [0, 1), dampening in [0, 1]".into());
-        }
-        if !(self.weight_decay >= 0.0 && self.weight_decay.is_finite())
-            || self
-                .grad_clip_norm
-                .is_some_and(|c| !(c > 0.0 && c.is_finite()))
-        {
-            return Err("optimizer.weight_decay must be >= 0, grad_clip_norm > 0".into());
-        }
-        Ok(())
-    }
 }
 
 /// `[network]`: the [`SdfcnnConfig`] fields (Table 13 defaults).
@@ -262,6 +151,18 @@ impl NetworkConfig {
 }
 
 impl SdfcnnTrainConfig {
+    /// The config with its data sources and `init` resolved as read from `config_path`
+    /// (relative to the working directory, else to the config's folder).
+    pub fn resolved(mut self, config_path: &Path) -> Self {
+        for list in [&mut self.data.train, &mut self.data.val] {
+            for s in list.iter_mut() {
+                *s = s.resolved(config_path);
+            }
+        }
+        self.init = self.init.map(|p| super::data::resolve(&p, config_path));
+        self
+    }
+
     /// Parses and checks a config; errors name `path` (and the line).
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
         let cfg: SdfcnnTrainConfig = toml::from_str(text).map_err(|e| toml_error(path, text, e))?;
@@ -345,7 +246,11 @@ mod tests {
 
     #[test]
     fn lr_schedule_and_optimizer_defaults_follow_the_paper() {
-        let o = OptimizerConfig::default();
+        let o = SdfcnnTrainConfig::parse(&tiny_config(Path::new("x"), ""), Path::new("t.toml"))
+            .unwrap()
+            .optimizer;
+        assert_eq!(o.weight_decay, OptimizerConfig::sgd_paper().weight_decay);
+        let o = OptimizerConfig::sgd_paper();
         assert_eq!(
             (o.lr_at(0), o.lr_at(19), o.lr_at(20), o.lr_at(500)),
             (0.1, 0.1, 0.01, 0.01)

@@ -20,63 +20,61 @@
 //!
 //! Run folder: `config.toml`, `metrics.csv`, `loss.png`, `val_seg.png`, `val_depth.png`, and
 //! `checkpoints/epoch-NNNN/{model.bpk, optimizer.bpk, state.json, config.toml}`
-//! ([`crate::training::RunDir`]). A resumed run reloads the model (with batch-norm running
-//! statistics), the optimizer state (momentum buffers, keyed by parameter id), the epoch and the
-//! step, and draws the same data order ([`epoch_order`]) and augmentations
-//! ([`batch_rng`]) as an uninterrupted run, so its loss curve continues the same numbers.
+//! ([`crate::training::RunDir`]). The run itself is [`crate::training::fit`]'s, shared with
+//! FPFDCNN: a resumed run reloads the model (with batch-norm running statistics), the
+//! optimizer state (momentum buffers, keyed by parameter id), the epoch and the step, and
+//! draws the same data order and augmentations as an uninterrupted run, so its loss curve
+//! continues the same numbers.
 //!
 //! Validation runs the network at `data.val_size` (default: the training size) on unaugmented
 //! images; seg/depth metrics compare the outputs upsampled to that size with the targets
 //! resized there by nearest neighbour. `eval seg` evaluates at the original resolution.
 
-use burn::optim::GradientsParams;
 use burn::prelude::*;
-use indicatif::{ProgressBar, ProgressStyle};
+use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::time::Instant;
 
-pub use super::config::{
-    DataConfig, NetworkConfig, OptimizerConfig, OptimizerKind, SdfcnnTrainConfig,
-};
-use super::data::{DataSource, SdfcnnBatch, SegDepthData, resolve};
+pub use super::config::{DataConfig, NetworkConfig, SdfcnnTrainConfig};
+use super::data::{SdfcnnBatch, SegDepthData};
 use super::inference::load_weights;
 use super::loss::LossResolution;
-use super::validation::{LossMeter, validate};
+use super::validation::validate;
 use super::{Sdfcnn, SdfcnnOutput};
 use crate::dataset::augment::AugmentConfig;
 use crate::error::{Error, Result};
 use crate::nn::seeded_init;
-use crate::training::{
-    EpochRecord, RunDir, RunOptions, TrainState, batch_rng, check_finite, check_finite_epoch,
-    epoch_order,
-};
+use crate::training::fit::{Fit, Learner, Plot, Step, fit};
+pub use crate::training::{OptimizerConfig, OptimizerKind};
+use crate::training::{RunDir, RunOptions, batch_rng};
 
 /// Trains SDFCNN as `config_text` (read from `config_path`) says, with the command-line
 /// overrides `opts`.
 pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<()> {
-    let cfg = SdfcnnTrainConfig::parse(config_text, config_path)?;
-    let epochs = opts.epochs.unwrap_or(cfg.epochs);
-    let backend = opts.backend.unwrap_or(cfg.backend);
+    let mut cfg = SdfcnnTrainConfig::parse(config_text, config_path)?.resolved(config_path);
+    if let Some(e) = opts.epochs {
+        cfg.epochs = e;
+    }
+    if let Some(b) = opts.backend {
+        cfg.backend = b;
+    }
+    if let Some(o) = &opts.out {
+        cfg.out = o.clone();
+    }
     // A backend not compiled in, without a device, or not trusted to train fails before any
     // data is read.
-    backend
+    cfg.backend
         .check_training("SDFCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
-    let device = backend.autodiff_device()?;
-    let out = opts.out.clone().unwrap_or_else(|| cfg.out.clone());
-    let sources = |list: &[DataSource]| -> Vec<DataSource> {
-        list.iter().map(|s| s.resolved(config_path)).collect()
-    };
+    let device = cfg.backend.autodiff_device()?;
     let focal = cfg.network.depth_focal;
-    let train = SegDepthData::open(&sources(&cfg.data.train))?.with_canonical(focal);
+    let train = SegDepthData::open(&cfg.data.train)?.with_canonical(focal);
     let val = if cfg.data.val.is_empty() {
         None
     } else {
-        Some(SegDepthData::open(&sources(&cfg.data.val))?.with_canonical(focal))
+        Some(SegDepthData::open(&cfg.data.val)?.with_canonical(focal))
     };
-    let init = cfg.init.as_ref().map(|p| resolve(p, config_path));
-    if let Some(p) = &init
+    if let Some(p) = &cfg.init
         && !p.exists()
     {
         return Err(Error::invalid(
@@ -85,104 +83,131 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         ));
     }
 
-    let mut run = RunDir::prepare(&out, config_text, opts.resume)?;
+    // Saved with every default and the paths as read from here, so the copy beside a
+    // checkpoint means the same wherever it is read from.
+    let saved = toml::to_string_pretty(&cfg)?;
+    let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text| {
+        let p = Path::new("config.toml");
+        let c = SdfcnnTrainConfig::parse(text, p).ok()?.resolved(p);
+        toml::to_string_pretty(&c).ok()
+    })?;
     run.keep = cfg.keep_checkpoints;
-    let net = cfg.network.to_config();
-    let model = net
+    let model = cfg
+        .network
+        .to_config()
         .init(&device)
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
     let mut model = seeded_init(model, cfg.seed);
-    let mut optim = cfg.optimizer.init();
-    let mut state = TrainState::default();
-    if let (Some(init), false) = (&init, opts.resume) {
+    if let (Some(init), false) = (&cfg.init, opts.resume) {
         model = initialise(model, init, &train, &cfg)?;
     }
-    if opts.resume {
-        let ck = run
-            .latest()?
-            .ok_or_else(|| Error::invalid(&run.root, "--resume: no checkpoint to resume from"))?;
-        model = load_weights(model, &ck.model_path(), &ck.dir.join("config.toml"))?;
-        let opt_path = ck.optimizer_path();
-        optim = optim
-            .load(&opt_path)
-            .map_err(|e| Error::invalid(&opt_path, format!("cannot load optimizer state: {e}")))?;
-        println!(
-            "resuming {} from epoch {} (step {})",
-            run.root.display(),
-            ck.state.epoch,
-            ck.state.step
-        );
-        state = ck.state;
-        // metrics.csv as the checkpoint knows it (whatever a kill left there).
-        write_history(&run, &state)?;
-    }
     println!(
-        "SDFCNN: {} training samples, {} validation samples, {} on {backend}, batch {}, epochs {}..{}",
+        "SDFCNN: {} training samples, {} validation samples, {} on {}, batch {}, {} epochs -> {}",
         train.len(),
         val.as_ref().map_or(0, |v| v.len()),
         fmt_size(cfg.data.size),
+        cfg.backend,
         cfg.batch_size,
-        state.epoch + 1,
-        epochs
+        cfg.epochs,
+        cfg.out.display()
     );
-
-    for epoch in state.epoch..epochs {
-        let started = Instant::now();
-        let lr = cfg.optimizer.lr_at(epoch);
-        let order = epoch_order(train.len(), cfg.seed, epoch);
-        let batches: Vec<&[usize]> = order.chunks(cfg.batch_size).collect();
-        let bar = progress_bar(batches.len(), epoch, epochs, opts.quiet);
-        let mut meter = LossMeter::default();
-        for (b, chunk) in batches.iter().enumerate() {
-            let mut rng = batch_rng(cfg.seed, epoch, b);
-            let samples = train.load_batch(chunk, cfg.data.size, &cfg.data.augment, &mut rng)?;
-            let batch = SdfcnnBatch::from_samples(&samples, &device)?;
-            let out = forward(&model, batch.images, cfg.loss.resolution)?;
-            let loss = cfg.loss.forward(out, batch.labels, batch.depth);
-            let values = [&loss.total, &loss.seg, &loss.depth].map(scalar);
-            check_finite(values[0], epoch, b, &run)?;
-            let grads = GradientsParams::from_grads(loss.total.backward(), &model);
-            model = optim.step(lr, model, grads);
-            state.step += 1;
-            meter.add(values, chunk.len());
-            bar.inc(1);
-            bar.set_message(format!("loss {:.4}", meter.mean()[0]));
-        }
-        bar.finish_and_clear();
-
-        let mut values = BTreeMap::new();
-        meter.record("train", &mut values);
-        // `valid()` also folds the last batch-norm running-statistics update into the shared
-        // state, so the checkpoint below holds it (a resumed run then continues exactly).
-        let snapshot = model.valid();
-        if let Some(val) = &val {
-            let size = cfg.data.val_size.unwrap_or(cfg.data.size);
-            validate(&snapshot, val, size, &cfg, &mut values)?;
-        }
-        check_finite_epoch(&snapshot, &values, epoch, &run)?;
-        let record = EpochRecord {
-            epoch: epoch + 1,
-            lr,
-            seconds: started.elapsed().as_secs_f64(),
-            values,
-        };
-        println!("{}", epoch_line(&record, epochs));
-        state.epoch = epoch + 1;
-        state.history.push(record);
-        write_history(&run, &state)?;
-        run.save(&state, config_text, |dir| {
-            let p = dir.join("model.bpk");
-            model
-                .clone()
-                .save_file(&p)
-                .map_err(|e| Error::invalid(&p, format!("cannot save model: {e}")))?;
-            let p = dir.join("optimizer.bpk");
-            optim
-                .save(&p)
-                .map_err(|e| Error::invalid(&p, format!("cannot save optimizer: {e}")))
-        })?;
-    }
+    let learner = SdfLearner {
+        cfg: &cfg,
+        train: &train,
+        val: val.as_ref(),
+        device: &device,
+    };
+    let setup = Fit {
+        run: &run,
+        config: &saved,
+        seed: cfg.seed,
+        epochs: cfg.epochs,
+        batch_size: cfg.batch_size,
+        optimizer: &cfg.optimizer,
+        resume: opts.resume,
+        quiet: opts.quiet,
+    };
+    fit(&learner, &setup, model)?;
     Ok(())
+}
+
+/// SDFCNN's part in [`fit`]: eq. 21 on labelled and depth-only samples, the paper's
+/// metrics (eqs 16-20) on the validation sources.
+struct SdfLearner<'a> {
+    cfg: &'a SdfcnnTrainConfig,
+    train: &'a SegDepthData,
+    val: Option<&'a SegDepthData>,
+    device: &'a Device,
+}
+
+impl Learner for SdfLearner<'_> {
+    type Model = Sdfcnn;
+
+    fn name(&self) -> &'static str {
+        "SDFCNN"
+    }
+
+    fn train_len(&self) -> usize {
+        self.train.len()
+    }
+
+    fn train_step(&self, model: &Sdfcnn, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Step> {
+        let cfg = self.cfg;
+        let samples = self
+            .train
+            .load_batch(ids, cfg.data.size, &cfg.data.augment, rng)?;
+        let batch = SdfcnnBatch::from_samples(&samples, self.device)?;
+        let out = forward(model, batch.images, cfg.loss.resolution)?;
+        let loss = cfg.loss.forward(out, batch.labels, batch.depth);
+        Ok(Step {
+            terms: vec![
+                ("seg_loss", scalar(&loss.seg)),
+                ("depth_loss", scalar(&loss.depth)),
+            ],
+            loss: loss.total,
+            samples: ids.len(),
+        })
+    }
+
+    fn validate(&self, model: &Sdfcnn, values: &mut BTreeMap<String, f64>) -> Result<()> {
+        match self.val {
+            Some(val) => {
+                let size = self.cfg.data.val_size.unwrap_or(self.cfg.data.size);
+                validate(model, val, size, self.cfg, values)
+            }
+            None => Ok(()),
+        }
+    }
+
+    fn plots(&self) -> &'static [Plot] {
+        &[
+            Plot {
+                file: "loss.png",
+                title: "SDFCNN loss (eq. 21)",
+                y_label: "loss",
+                keys: &["loss"],
+                log_y: false,
+            },
+            Plot {
+                file: "val_seg.png",
+                title: "Validation segmentation (eqs 16-17)",
+                y_label: "score",
+                keys: &["val_mpa", "val_miou", "val_pixel_acc"],
+                log_y: false,
+            },
+            Plot {
+                file: "val_depth.png",
+                title: "Validation depth (eqs 18-20)",
+                y_label: "value",
+                keys: &["val_rms", "val_rel", "val_delta"],
+                log_y: false,
+            },
+        ]
+    }
+
+    fn summary(&self, values: &BTreeMap<String, f64>) -> String {
+        epoch_summary(values)
+    }
 }
 
 /// Loads `init` into `model`: ImageNet encoder weights from a `.safetensors` file (checked on
@@ -253,24 +278,9 @@ pub(super) fn model_device(model: &Sdfcnn) -> Device {
         .unwrap_or_else(Device::flex)
 }
 
-fn progress_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(len as u64).with_prefix(format!("epoch {}/{epochs}", epoch + 1));
-    if let Ok(style) =
-        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})")
-    {
-        bar.set_style(style.progress_chars("=> "));
-    }
-    bar
-}
-
-fn epoch_line(r: &EpochRecord, epochs: usize) -> String {
-    let mut s = format!(
-        "epoch {}/{epochs} lr {} ({:.1} s)",
-        r.epoch, r.lr, r.seconds
-    );
+/// The overall losses and metrics, then each named validation source's δ1, REL and MPA.
+fn epoch_summary(values: &BTreeMap<String, f64>) -> String {
+    let mut s = String::new();
     for key in [
         "train_loss",
         "val_loss",
@@ -280,49 +290,23 @@ fn epoch_line(r: &EpochRecord, epochs: usize) -> String {
         "val_rel",
         "val_delta1",
     ] {
-        if let Some(v) = r.values.get(key) {
+        if let Some(v) = values.get(key) {
             s.push_str(&format!(" {key} {v:.4}"));
         }
     }
     // Named validation sources: their δ1 and REL (and MPA where labelled).
-    for (key, v) in &r.values {
+    for (key, v) in values {
         let named = key.starts_with("val_") && key.matches('_').count() >= 2;
         let shown = ["_delta1", "_rel", "_mpa"].iter().any(|m| key.ends_with(m));
         if named && shown && !key.ends_with("_pixel_acc") {
             s.push_str(&format!(" {key} {v:.4}"));
         }
     }
-    s
+    s.trim_start().to_string()
 }
 
 fn fmt_size([h, w]: [usize; 2]) -> String {
     format!("{w}x{h}")
-}
-
-fn write_history(run: &RunDir, state: &TrainState) -> Result<()> {
-    let h = &state.history;
-    h.write_csv(run.root.join("metrics.csv"))?;
-    h.plot(
-        run.root.join("loss.png"),
-        "SDFCNN loss (eq. 21)",
-        "loss",
-        &["loss"],
-        false,
-    )?;
-    h.plot(
-        run.root.join("val_seg.png"),
-        "Validation segmentation (eqs 16-17)",
-        "score",
-        &["val_mpa", "val_miou", "val_pixel_acc"],
-        false,
-    )?;
-    h.plot(
-        run.root.join("val_depth.png"),
-        "Validation depth (eqs 18-20)",
-        "value",
-        &["val_rms", "val_rel", "val_delta"],
-        false,
-    )
 }
 
 #[cfg(test)]

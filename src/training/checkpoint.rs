@@ -62,6 +62,19 @@ impl RunDir {
     /// and writes the config there. When resuming, the saved config must equal
     /// the given one except for the number of epochs.
     pub fn prepare(root: impl AsRef<Path>, config_toml: &str, resume: bool) -> Result<Self> {
+        Self::prepare_normalized(root, config_toml, resume, |_| None)
+    }
+
+    /// [`RunDir::prepare`] for a trainer that saves its config normalised (every default
+    /// written out): on `--resume` the saved config is compared after `normalize` (the
+    /// trainer's parse and re-serialisation; `None` compares it as written), so a run saved
+    /// by an older version, or with the defaults left out, resumes when it means the same.
+    pub fn prepare_normalized(
+        root: impl AsRef<Path>,
+        config_toml: &str,
+        resume: bool,
+        normalize: impl Fn(&str) -> Option<String>,
+    ) -> Result<Self> {
         let run = RunDir {
             root: root.as_ref().to_path_buf(),
             keep: 3,
@@ -88,6 +101,7 @@ impl RunDir {
         let cfg_path = run.root.join("config.toml");
         if resume && cfg_path.is_file() {
             let saved = crate::io::read_text(&cfg_path)?;
+            let saved = normalize(&saved).unwrap_or(saved);
             if let Some(diff) = config_difference(&saved, config_toml) {
                 return Err(Error::invalid(
                     &cfg_path,

@@ -1,15 +1,18 @@
-//! What both trainers share: run folders with atomic per-epoch checkpoints and
-//! `--resume`, per-epoch metrics (CSV + plots), learning-rate schedules, seeded
-//! data order, and the NaN guard. Config-file sweeps over the trainers live in the `train`
-//! application (`train/sweep/`), which knows the concrete models.
+//! What both trainers share: the fit loop ([`fit`]), `[optimizer]` ([`optimizer`]), run
+//! folders with atomic per-epoch checkpoints and `--resume`, per-epoch metrics (CSV +
+//! plots), seeded data order, and the NaN guard. Config-file sweeps over the trainers live
+//! in the `train` application (`train/sweep/`), which knows the concrete models.
 
 pub mod checkpoint;
+pub mod fit;
 pub mod history;
+pub mod optimizer;
 
 /// Backends live with the networks ([`crate::nn::backend`]); re-exported for the trainers.
 pub use crate::nn::backend::{self, BackendKind};
 pub use checkpoint::{Checkpoint, RunDir, TrainState, resolve_checkpoint};
 pub use history::{EpochRecord, History};
+pub use optimizer::{OptimizerConfig, OptimizerKind};
 
 use rand::SeedableRng;
 use rand::seq::SliceRandom;

@@ -373,7 +373,7 @@ out = "OUT"
 seeds = [1]
 select = { metric = "val_desc_top1" }
 [grid]
-lr = [0.001, 0.0003]
+"optimizer.lr" = [0.001, 0.0003]
 "loss.descriptor_weight" = [0.5, 1.0, 2.0]
 "#;
     let s = load(&dir, &base, sweep).expect("valid fpfdcnn sweep");
@@ -384,12 +384,15 @@ lr = [0.001, 0.0003]
     let cfg =
         sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(&s.runs[5].config, Path::new("x"))
             .expect("run config parses");
-    assert_eq!((cfg.lr, cfg.loss.descriptor_weight), (0.0003, 2.0));
-    // SDFCNN's field names and metrics are not FPFDCNN's.
-    let e = load(&dir, &base, &sweep.replace("lr = ", "\"optimizer.lr\" = "))
+    assert_eq!(
+        (cfg.optimizer.lr, cfg.loss.descriptor_weight),
+        (0.0003, 2.0)
+    );
+    // The keys of before 2026-11-26 say where they moved; SDFCNN's metrics are not FPFDCNN's.
+    let e = load(&dir, &base, &sweep.replace("\"optimizer.lr\" = ", "lr = "))
         .err()
-        .expect("no [optimizer] in FPFDCNN configs");
-    assert!(e.to_string().contains("unknown field `optimizer`"), "{e}");
+        .expect("top-level lr is refused");
+    assert!(e.to_string().contains("`lr` -> `optimizer.lr`"), "{e}");
     let e = load(&dir, &base, &sweep.replace("val_desc_top1", "val_miou"))
         .err()
         .expect("no mIoU");

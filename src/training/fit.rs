@@ -1,0 +1,318 @@
+//! The fit loop both networks train with, as Burn's `Learner` runs `TrainStep` /
+//! `ValidStep`: a network plugs in through [`Learner`] (the loss of a batch, its validation
+//! metrics, its plots) and [`fit`] does the rest, the same way for every network:
+//! - `--resume`: model, optimizer state, epoch, step and history from the run's last
+//!   checkpoint; the seeded data order ([`epoch_order`]) and augmentation ([`batch_rng`])
+//!   make a resumed run continue the numbers of an uninterrupted one;
+//! - a progress bar per epoch (hidden by `--quiet`; one line per epoch is always printed);
+//! - the non-finite policy: a non-finite loss stops the run; a batch with non-finite
+//!   gradients is skipped, ten in a row stop the run; an epoch whose weights or metrics are
+//!   not finite is not saved ([`check_finite_epoch`]); every stop names the checkpoint kept;
+//! - per epoch: `metrics.csv` and the network's plots, then an atomic checkpoint
+//!   (`model.bpk`, `optimizer.bpk`, `state.json`, the run's config).
+
+use super::{
+    EpochRecord, OptimizerConfig, RunDir, TrainState, batch_rng, check_finite, check_finite_epoch,
+    epoch_order, non_finite_grads,
+};
+use crate::error::{Error, Result};
+use burn::module::Module;
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use indicatif::{ProgressBar, ProgressStyle};
+use rand_chacha::ChaCha8Rng;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Instant;
+
+/// The loss of one training batch.
+pub struct Step {
+    /// The total loss, to back-propagate.
+    pub loss: Tensor<1>,
+    /// Its terms (and other per-batch figures) for the epoch means, e.g. `("seg_loss", x)`:
+    /// recorded as `train_<name>` beside `train_loss`.
+    pub terms: Vec<(&'static str, f64)>,
+    /// Samples in the batch (the weight of its terms in the means).
+    pub samples: usize,
+}
+
+/// A plot of the run's history written beside `metrics.csv` after every epoch.
+pub struct Plot {
+    /// File name in the run folder.
+    pub file: &'static str,
+    pub title: &'static str,
+    pub y_label: &'static str,
+    /// Every metric whose name contains one of these.
+    pub keys: &'static [&'static str],
+    pub log_y: bool,
+}
+
+/// What a network brings to [`fit`].
+pub trait Learner {
+    /// The network (on an autodiff device).
+    type Model: Module;
+
+    /// The network's name in messages, e.g. `"SDFCNN"`.
+    fn name(&self) -> &'static str;
+
+    /// Number of training samples (an epoch visits them in [`epoch_order`]).
+    fn train_len(&self) -> usize;
+
+    /// At most this many samples an epoch, the first of the seeded order (0: all).
+    fn samples_per_epoch(&self) -> usize {
+        0
+    }
+
+    /// The loss of the training samples `ids`, augmented with `rng`.
+    fn train_step(&self, model: &Self::Model, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Step>;
+
+    /// Adds the validation metrics (`val_*`) of `model` (in validation mode) to `values`.
+    fn validate(&self, model: &Self::Model, values: &mut BTreeMap<String, f64>) -> Result<()>;
+
+    /// The plots of the run folder.
+    fn plots(&self) -> &'static [Plot];
+
+    /// The end-of-epoch line's metrics (default: all of them).
+    fn summary(&self, values: &BTreeMap<String, f64>) -> String {
+        let parts: Vec<String> = values.iter().map(|(k, v)| format!("{k} {v:.4}")).collect();
+        parts.join(", ")
+    }
+}
+
+/// The settings of a run every network shares (the training config's skeleton).
+pub struct Fit<'a> {
+    pub run: &'a RunDir,
+    /// The config saved beside every checkpoint.
+    pub config: &'a str,
+    pub seed: u64,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub optimizer: &'a OptimizerConfig,
+    /// Continue from the run's last checkpoint (the model given is then only its shape).
+    pub resume: bool,
+    /// Hide the progress bar.
+    pub quiet: bool,
+}
+
+/// Per-batch figures summed over an epoch, weighted by samples.
+#[derive(Debug, Default)]
+pub struct Meter {
+    sums: Vec<(&'static str, f64)>,
+    samples: usize,
+}
+
+impl Meter {
+    /// Adds one batch's figures.
+    pub fn add(&mut self, terms: &[(&'static str, f64)], samples: usize) {
+        for &(name, v) in terms {
+            match self.sums.iter_mut().find(|s| s.0 == name) {
+                Some(s) => s.1 += v * samples as f64,
+                None => self.sums.push((name, v * samples as f64)),
+            }
+        }
+        self.samples += samples;
+    }
+
+    /// The mean of `name` (0 before any batch).
+    pub fn mean(&self, name: &str) -> f64 {
+        let sum = self.sums.iter().find(|s| s.0 == name).map_or(0.0, |s| s.1);
+        sum / self.samples.max(1) as f64
+    }
+
+    /// The means as `{prefix}_{name}`.
+    pub fn record(&self, prefix: &str, values: &mut BTreeMap<String, f64>) {
+        for &(name, _) in &self.sums {
+            values.insert(format!("{prefix}_{name}"), self.mean(name));
+        }
+    }
+
+    fn line(&self) -> String {
+        let parts: Vec<String> = self
+            .sums
+            .iter()
+            .map(|&(name, _)| format!("{name} {:.4}", self.mean(name)))
+            .collect();
+        parts.join(" ")
+    }
+}
+
+/// Trains `model` as `fit` says (see the module docs) and returns it after the last epoch.
+pub fn fit<L: Learner>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Model> {
+    let mut optim = fit.optimizer.init();
+    let (mut model, mut state) = (model, TrainState::default());
+    if fit.resume {
+        (model, optim, state) = resume(learner, fit.run, model, optim)?;
+    }
+    for epoch in state.epoch..fit.epochs {
+        let started = Instant::now();
+        let lr = fit.optimizer.lr_at(epoch);
+        let meter;
+        (model, meter) = train_epoch(learner, fit, model, &mut optim, epoch, lr, &mut state)?;
+        let mut values = BTreeMap::new();
+        meter.record("train", &mut values);
+        // `valid()` also folds the last batch-norm running-statistics update into the
+        // shared state, so the checkpoint below holds it (a resumed run continues exactly).
+        let snapshot = model.valid();
+        learner.validate(&snapshot, &mut values)?;
+        check_finite_epoch(&snapshot, &values, epoch, fit.run)?;
+        let summary = learner.summary(&values);
+        state.epoch = epoch + 1;
+        state.history.push(EpochRecord {
+            epoch: epoch + 1,
+            lr,
+            seconds: started.elapsed().as_secs_f64(),
+            values,
+        });
+        let ckpt = fit.run.save(&state, fit.config, |dir| {
+            let path = dir.join("model.bpk");
+            model
+                .clone()
+                .save_file(&path)
+                .map_err(|e| Error::invalid(&path, format!("cannot save the model: {e}")))?;
+            let path = dir.join("optimizer.bpk");
+            optim
+                .save(&path)
+                .map_err(|e| Error::invalid(&path, format!("cannot save the optimizer: {e}")))
+        })?;
+        write_history(learner, &fit.run.root, &state)?;
+        println!(
+            "epoch {}/{} ({:.0} s, lr {lr}): {summary} -> {}",
+            epoch + 1,
+            fit.epochs,
+            started.elapsed().as_secs_f64(),
+            ckpt.dir.display()
+        );
+    }
+    Ok(model)
+}
+
+/// One epoch over the training samples in the seeded order: the updated model and the
+/// epoch's sums.
+fn train_epoch<L: Learner>(
+    learner: &L,
+    fit: &Fit,
+    mut model: L::Model,
+    optim: &mut ModuleOptimizer,
+    epoch: usize,
+    lr: f64,
+    state: &mut TrainState,
+) -> Result<(L::Model, Meter)> {
+    let mut order = epoch_order(learner.train_len(), fit.seed, epoch);
+    if learner.samples_per_epoch() > 0 {
+        order.truncate(learner.samples_per_epoch());
+    }
+    let batches: Vec<&[usize]> = order.chunks(fit.batch_size.max(1)).collect();
+    let bar = progress_bar(batches.len(), epoch, fit.epochs, fit.quiet);
+    let mut meter = Meter::default();
+    let mut skipped = 0usize;
+    for (bi, ids) in batches.iter().enumerate() {
+        let mut rng = batch_rng(fit.seed, epoch, bi);
+        let step = learner.train_step(&model, ids, &mut rng)?;
+        let value = step.loss.clone().into_scalar::<f32>() as f64;
+        check_finite(value, epoch, bi, fit.run)?;
+        let grads = GradientsParams::from_grads(step.loss.backward(), &model);
+        let bad = non_finite_grads(&model, &grads);
+        bar.inc(1);
+        if !bad.is_empty() {
+            // A rare batch can give infinite gradients (a saturated sigmoid, a degenerate
+            // descriptor); skipping it keeps the weights finite.
+            skipped += 1;
+            bar.suspend(|| {
+                eprintln!(
+                    "epoch {} batch {bi}: non-finite gradients in {} parameter tensors (shapes \
+                     {:?}), step skipped",
+                    epoch + 1,
+                    bad.len(),
+                    &bad[..bad.len().min(3)]
+                )
+            });
+            if skipped >= 10 {
+                check_finite(f64::NAN, epoch, bi, fit.run)?;
+            }
+            continue;
+        }
+        skipped = 0;
+        model = optim.step(lr, model, grads);
+        state.step += 1;
+        let mut terms = vec![("loss", value)];
+        terms.extend(step.terms);
+        meter.add(&terms, step.samples);
+        bar.set_message(meter.line());
+    }
+    bar.finish_and_clear();
+    Ok((model, meter))
+}
+
+/// `--resume`: the model, optimizer state and training state of the run's last checkpoint;
+/// `metrics.csv` and the plots are rewritten from that state (a kill between a checkpoint
+/// and its metrics line lost nothing).
+fn resume<L: Learner>(
+    learner: &L,
+    run: &RunDir,
+    model: L::Model,
+    optim: ModuleOptimizer,
+) -> Result<(L::Model, ModuleOptimizer, TrainState)> {
+    let ckpt = run
+        .latest()?
+        .ok_or_else(|| Error::invalid(&run.root, "--resume: no checkpoint to resume from"))?;
+    let model = crate::nn::weights::load_into(
+        model,
+        &ckpt.model_path(),
+        learner.name(),
+        &ckpt.dir.join("config.toml"),
+    )?;
+    let path = ckpt.optimizer_path();
+    let optim = optim
+        .load(&path)
+        .map_err(|e| Error::invalid(&path, format!("cannot load the optimizer state: {e}")))?;
+    write_history(learner, &run.root, &ckpt.state)?;
+    println!(
+        "resuming {} after epoch {} (step {})",
+        run.root.display(),
+        ckpt.state.epoch,
+        ckpt.state.step
+    );
+    Ok((model, optim, ckpt.state))
+}
+
+/// `metrics.csv` and the learner's plots of the run so far.
+fn write_history<L: Learner>(learner: &L, root: &Path, state: &TrainState) -> Result<()> {
+    state.history.write_csv(root.join("metrics.csv"))?;
+    for p in learner.plots() {
+        state
+            .history
+            .plot(root.join(p.file), p.title, p.y_label, p.keys, p.log_y)?;
+    }
+    Ok(())
+}
+
+/// The progress bar of an epoch of `len` batches (hidden when `quiet`).
+fn progress_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len as u64).with_prefix(format!("epoch {}/{epochs}", epoch + 1));
+    if let Ok(style) =
+        ProgressStyle::with_template("{prefix} [{bar:30}] {pos}/{len} {msg} ({elapsed}<{eta})")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn meter_weights_batches_by_samples() {
+        let mut m = Meter::default();
+        m.add(&[("loss", 1.0), ("seg_loss", 0.5)], 4);
+        m.add(&[("loss", 4.0), ("seg_loss", 2.0)], 2);
+        let mut values = BTreeMap::new();
+        m.record("train", &mut values);
+        assert_eq!(values["train_loss"], 2.0);
+        assert_eq!(values["train_seg_loss"], 1.0);
+        assert_eq!(m.line(), "loss 2.0000 seg_loss 1.0000");
+    }
+}

@@ -126,8 +126,10 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         train.frames.len(),
         val.pairs.len(),
     );
+    // The device's generator draws the initial weights (as since the first FPFDCNN runs,
+    // so seeds keep their meaning).
     device.seed(cfg.seed);
-    let model = crate::nn::seeded_init(cfg.network().init(&device)?, cfg.seed);
+    let model = cfg.network().init(&device)?;
     let model = match (&cfg.init, opts.resume) {
         (Some(init), false) => {
             let (weights, config) = crate::training::resolve_checkpoint(init)?;
@@ -192,7 +194,9 @@ impl Learner for FpLearner<'_> {
         Ok(Step {
             terms: l.terms(),
             loss: l.total,
-            samples: ids.len(),
+            // Each term is already a mean over the batch's pairs (the descriptor term over
+            // those with matches), so every batch counts once in the epoch means.
+            samples: 1,
         })
     }
 
@@ -220,7 +224,7 @@ impl Learner for FpLearner<'_> {
             let l = batch_loss(&model, batch, cfg)?;
             let mut terms = vec![("loss", l.total.clone().into_scalar::<f32>() as f64)];
             terms.extend(l.terms());
-            meter.add(&terms, c.len());
+            meter.add(&terms, 1);
         }
         meter.record("val", values);
         Ok(())

@@ -1,6 +1,5 @@
 //! The validation pass of the SDFCNN trainer: eq. 21's loss terms and the paper's metrics
-//! (eqs 16-20) of a model on unaugmented validation images, overall and per named source,
-//! and the loss sums an epoch accumulates.
+//! (eqs 16-20) of a model on unaugmented validation images, overall and per named source.
 
 use std::collections::BTreeMap;
 
@@ -14,36 +13,7 @@ use crate::error::{Error, Result};
 use crate::metrics::{ConfusionMatrix, DepthAccumulator};
 use crate::nn::resize_bilinear;
 use crate::training::batch_rng;
-
-/// Loss sums over an epoch, weighted by batch size.
-#[derive(Default)]
-pub(super) struct LossMeter {
-    total: f64,
-    seg: f64,
-    depth: f64,
-    samples: usize,
-}
-
-impl LossMeter {
-    pub(super) fn add(&mut self, [total, seg, depth]: [f64; 3], n: usize) {
-        self.total += total * n as f64;
-        self.seg += seg * n as f64;
-        self.depth += depth * n as f64;
-        self.samples += n;
-    }
-
-    pub(super) fn mean(&self) -> [f64; 3] {
-        let n = self.samples.max(1) as f64;
-        [self.total / n, self.seg / n, self.depth / n]
-    }
-
-    pub(super) fn record(&self, prefix: &str, values: &mut BTreeMap<String, f64>) {
-        let [t, s, d] = self.mean();
-        values.insert(format!("{prefix}_loss"), t);
-        values.insert(format!("{prefix}_seg_loss"), s);
-        values.insert(format!("{prefix}_depth_loss"), d);
-    }
-}
+use crate::training::fit::Meter;
 
 /// Validation loss and the eqs 16-20 metrics of `model` on `data` at `size`, overall and for
 /// each named source (`val_<name>_delta1`, ...). Depth metrics are in metres: predictions and
@@ -57,7 +27,7 @@ pub(super) fn validate(
 ) -> Result<()> {
     let device = model_device(model);
     let indices = data.first_of_each(cfg.data.val_limit);
-    let mut meter = LossMeter::default();
+    let mut meter = Meter::default();
     let classes = cfg.network.num_classes;
     let mut confusion = ConfusionMatrix::new(classes);
     let mut depth_acc = DepthAccumulator::default();
@@ -78,10 +48,12 @@ pub(super) fn validate(
             LossResolution::Full => full.clone(),
         };
         let loss = cfg.loss.forward(at_loss, batch.labels, batch.depth);
-        meter.add(
-            [&loss.total, &loss.seg, &loss.depth].map(scalar),
-            chunk.len(),
-        );
+        let terms = [
+            ("loss", scalar(&loss.total)),
+            ("seg_loss", scalar(&loss.seg)),
+            ("depth_loss", scalar(&loss.depth)),
+        ];
+        meter.add(&terms, chunk.len());
         let (labels, depth) = predictions(full)?;
         let mut offset = 0;
         for (s, &i) in samples.iter().zip(chunk) {

@@ -32,7 +32,8 @@ pub struct Step {
     /// Its terms (and other per-batch figures) for the epoch means, e.g. `("seg_loss", x)`:
     /// recorded as `train_<name>` beside `train_loss`.
     pub terms: Vec<(&'static str, f64)>,
-    /// Samples in the batch (the weight of its terms in the means).
+    /// The weight of its terms in the epoch means (the samples in the batch, or 1 for a
+    /// network whose terms are batch means already).
     pub samples: usize,
 }
 

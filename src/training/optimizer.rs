@@ -67,13 +67,15 @@ impl OptimizerConfig {
         }
     }
 
-    /// Adam at `lr`, no schedule, no weight decay, gradient norm clipped at 1.
+    /// Adam at `lr` with Burn's `AdamConfig` defaults (ε = 1e-5), no schedule, no weight
+    /// decay, gradient norm clipped at 1.
     pub fn adam(lr: f64) -> Self {
         OptimizerConfig {
             kind: OptimizerKind::Adam,
             lr,
             lr_steps: Vec::new(),
             weight_decay: 0.0,
+            epsilon: 1e-5,
             grad_clip_norm: 1.0,
             ..Self::sgd_paper()
         }

@@ -47,6 +47,9 @@ pub struct Trainer {
     pub model: &'static str,
     /// Parses a config as the trainer does and returns it with every default filled in.
     pub parse: fn(&str, &Path) -> Result<Value>,
+    /// [`Trainer::parse`] for the copy of a config saved in a run folder, which may have the
+    /// shape of an older version.
+    pub parse_saved: fn(&str, &Path) -> Result<Value>,
     /// Trains (config path, config text, options).
     pub run: fn(&Path, &str, &RunOptions) -> Result<()>,
     /// Checks that the data a config names can be opened (config text, config path).
@@ -142,6 +145,7 @@ pub fn trainer(model: &str) -> Option<Trainer> {
         "sdfcnn" => Some(Trainer {
             model: "sdfcnn",
             parse: |t, p| normalized(&sdf_slam::sdfcnn::SdfcnnTrainConfig::parse(t, p)?, p),
+            parse_saved: |t, p| normalized(&sdf_slam::sdfcnn::SdfcnnTrainConfig::parse(t, p)?, p),
             run: sdf_slam::sdfcnn::training::run,
             check_data: sdfcnn_check_data,
             // `[[data.val]]` sources.
@@ -170,6 +174,12 @@ pub fn trainer(model: &str) -> Option<Trainer> {
             parse: |t, p| {
                 normalized(
                     &sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse(t, p)?,
+                    p,
+                )
+            },
+            parse_saved: |t, p| {
+                normalized(
+                    &sdf_slam::fpfdcnn::training::FpfdcnnTrainConfig::parse_saved(t, p)?,
                     p,
                 )
             },

@@ -108,9 +108,9 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
     let device = cfg.backend.autodiff_device()?;
     let saved = toml::to_string_pretty(&cfg)?;
-    let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text| {
-        let p = Path::new("config.toml");
-        toml::to_string_pretty(&FpfdcnnTrainConfig::parse_saved(text, p).ok()?).ok()
+    let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text, path| {
+        let c = FpfdcnnTrainConfig::parse_saved(text, path)?;
+        Ok(Some(toml::to_string_pretty(&c)?))
     })?;
     run.keep = cfg.keep_checkpoints;
     println!(

@@ -1,6 +1,6 @@
-//! The SDFCNN training config (TOML): the run, `[data]`, `[optimizer]` (the Burn optimizer
-//! and the learning-rate schedule), `[network]`, and the checks [`SdfcnnTrainConfig::parse`]
-//! makes. [`super::training`] runs it.
+//! The SDFCNN training config (TOML): the run, `[data]`, `[optimizer]` (shared with FPFDCNN:
+//! [`crate::training::optimizer`]; the paper's SGD recipe by default), `[network]`, and the
+//! checks [`SdfcnnTrainConfig::parse`] makes. [`super::training`] runs it.
 
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -86,10 +86,10 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     // Saved with every default and the paths as read from here, so the copy beside a
     // checkpoint means the same wherever it is read from.
     let saved = toml::to_string_pretty(&cfg)?;
-    let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text| {
-        let p = Path::new("config.toml");
-        let c = SdfcnnTrainConfig::parse(text, p).ok()?.resolved(p);
-        toml::to_string_pretty(&c).ok()
+    // An older run's copy may hold the paths as written, relative to this config's folder.
+    let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text, path| {
+        let c = SdfcnnTrainConfig::parse(text, path)?.resolved(config_path);
+        Ok(Some(toml::to_string_pretty(&c)?))
     })?;
     run.keep = cfg.keep_checkpoints;
     let model = cfg

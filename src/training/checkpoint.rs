@@ -59,21 +59,23 @@ struct Last {
 
 impl RunDir {
     /// Opens `root` for a new run (it must not hold checkpoints unless `resume`)
-    /// and writes the config there. When resuming, the saved config must equal
-    /// the given one except for the number of epochs.
+    /// and writes the config there. When resuming, the saved config must mean the
+    /// same as the given one except for the settings that change no computed number
+    /// ([`FREE_SETTINGS`]).
     pub fn prepare(root: impl AsRef<Path>, config_toml: &str, resume: bool) -> Result<Self> {
-        Self::prepare_normalized(root, config_toml, resume, |_| None)
+        Self::prepare_normalized(root, config_toml, resume, |_, _| Ok(None))
     }
 
     /// [`RunDir::prepare`] for a trainer that saves its config normalised (every default
-    /// written out): on `--resume` the saved config is compared after `normalize` (the
-    /// trainer's parse and re-serialisation; `None` compares it as written), so a run saved
-    /// by an older version, or with the defaults left out, resumes when it means the same.
+    /// written out): on `--resume` the saved config (its text and path) is compared after
+    /// `normalize` (the trainer's parse and re-serialisation; `Ok(None)` compares it as
+    /// written), so a run saved by an older version, or with the defaults left out, resumes
+    /// when it means the same. A saved config that no longer parses is an error naming it.
     pub fn prepare_normalized(
         root: impl AsRef<Path>,
         config_toml: &str,
         resume: bool,
-        normalize: impl Fn(&str) -> Option<String>,
+        normalize: impl Fn(&str, &Path) -> Result<Option<String>>,
     ) -> Result<Self> {
         let run = RunDir {
             root: root.as_ref().to_path_buf(),
@@ -101,13 +103,14 @@ impl RunDir {
         let cfg_path = run.root.join("config.toml");
         if resume && cfg_path.is_file() {
             let saved = crate::io::read_text(&cfg_path)?;
-            let saved = normalize(&saved).unwrap_or(saved);
+            let saved = normalize(&saved, &cfg_path)?.unwrap_or(saved);
             if let Some(diff) = config_difference(&saved, config_toml) {
                 return Err(Error::invalid(
                     &cfg_path,
                     format!(
                         "--resume with a config that differs from the one this run was started \
-                         with: {diff} (only `epochs`, `keep_checkpoints` and `out` may change)"
+                         with: {diff} (only `epochs`, `keep_checkpoints`, `out` and `backend` may \
+                         change)"
                     ),
                 ));
             }
@@ -206,9 +209,10 @@ impl RunDir {
 }
 
 /// Settings a resumed run may change: the number of epochs, how many checkpoints are kept,
-/// and where the run folder is (it may have moved, or be named by another spelling); none
-/// changes what the epochs already run computed.
-const FREE_SETTINGS: [&str; 3] = ["epochs", "keep_checkpoints", "out"];
+/// where the run folder is (it may have moved, or be named by another spelling), and the
+/// backend (`--backend`: the same computation on another device, equal up to float
+/// rounding); none changes what the epochs already run computed.
+const FREE_SETTINGS: [&str; 4] = ["epochs", "keep_checkpoints", "out", "backend"];
 
 /// The first difference in meaning between two training configs, as `key: saved -> given`,
 /// or `None` when they agree: keys compared as parsed TOML (order, spacing and comments do

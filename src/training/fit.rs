@@ -120,8 +120,12 @@ impl Meter {
         sum / self.samples.max(1) as f64
     }
 
-    /// The means as `{prefix}_{name}`.
+    /// The means as `{prefix}_{name}`; `{prefix}_loss` always (NaN when no batch added
+    /// one, which [`check_finite_epoch`] then refuses to save).
     pub fn record(&self, prefix: &str, values: &mut BTreeMap<String, f64>) {
+        if self.samples == 0 {
+            values.insert(format!("{prefix}_loss"), f64::NAN);
+        }
         for &(name, _) in &self.sums {
             values.insert(format!("{prefix}_{name}"), self.mean(name));
         }
@@ -228,7 +232,12 @@ fn train_epoch<L: Learner>(
                 )
             });
             if skipped >= 10 {
-                check_finite(f64::NAN, epoch, bi, fit.run)?;
+                return Err(Error::msg(format!(
+                    "epoch {} batch {bi}: ten batches in a row had non-finite gradients: \
+                     training stopped; {}. Lower the learning rate or check the data.",
+                    epoch + 1,
+                    super::kept_checkpoint(fit.run)
+                )));
             }
             continue;
         }

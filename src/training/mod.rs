@@ -77,37 +77,48 @@ pub fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>>
     non_finite(module, None)
 }
 
-/// Shapes of the parameters whose gradient (with `grads`) or value (without) is not finite.
+/// Shapes of the parameters whose gradient (with `grads`) or value (without) is not finite:
+/// each tensor's sum (a NaN or an infinity anywhere makes it non-finite), all read back from
+/// the device at once.
 fn non_finite<M: burn::module::Module>(
     module: &M,
     grads: Option<&burn::optim::GradientsParams>,
 ) -> Vec<Vec<usize>> {
-    struct Check<'a> {
+    use burn::prelude::Tensor;
+    struct Sums<'a> {
         grads: Option<&'a burn::optim::GradientsParams>,
-        bad: Vec<Vec<usize>>,
+        shapes: Vec<Vec<usize>>,
+        sums: Vec<Tensor<1>>,
     }
-    impl burn::module::ModuleVisitor for Check<'_> {
-        fn visit_float<const D: usize>(
-            &mut self,
-            param: &burn::module::Param<burn::prelude::Tensor<D>>,
-        ) {
+    impl burn::module::ModuleVisitor for Sums<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
             let tensor = match self.grads {
                 Some(grads) => grads.get::<D>(param.id),
                 None => Some(param.val()),
             };
-            if let Some(t) = tensor
-                && !t.clone().sum().into_scalar::<f32>().is_finite()
-            {
-                self.bad.push(t.dims().to_vec());
+            if let Some(t) = tensor {
+                self.shapes.push(t.dims().to_vec());
+                self.sums.push(t.sum());
             }
         }
     }
-    let mut check = Check {
+    let mut sums = Sums {
         grads,
-        bad: Vec::new(),
+        shapes: Vec::new(),
+        sums: Vec::new(),
     };
-    module.visit(&mut check);
-    check.bad
+    module.visit(&mut sums);
+    if sums.sums.is_empty() {
+        return Vec::new();
+    }
+    let values = Tensor::cat(sums.sums, 0).into_data().convert::<f32>();
+    let values = values.as_slice::<f32>().unwrap_or(&[]);
+    sums.shapes
+        .into_iter()
+        .zip(values)
+        .filter(|(_, v)| !v.is_finite())
+        .map(|(s, _)| s)
+        .collect()
 }
 
 /// Stops training on a non-finite loss with a message that says what was kept.
@@ -158,7 +169,7 @@ pub fn check_finite_epoch<M: burn::module::Module>(
 }
 
 /// "the last good checkpoint, epoch N, is kept in DIR" (or that there is none yet).
-fn kept_checkpoint(run: &RunDir) -> String {
+pub(crate) fn kept_checkpoint(run: &RunDir) -> String {
     match run.latest() {
         Ok(Some(c)) => format!(
             "the last good checkpoint, epoch {}, is kept in {}",

@@ -25,7 +25,7 @@ impl Sweep {
             return Ok(());
         }
         let text = sdf_slam::io::read_text(&cfg_path)?;
-        let saved = (self.trainer.parse)(&text, &cfg_path)?;
+        let saved = (self.trainer.parse_saved)(&text, &cfg_path)?;
         let strip = |v: &Value| {
             let mut v = v.clone();
             if let Value::Table(t) = &mut v {

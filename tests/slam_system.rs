@@ -423,6 +423,27 @@ fn threads_and_single_thread_give_the_same_trajectory_and_map() {
 }
 
 #[test]
+fn tracking_against_local_keyframes_is_accurate_and_thread_independent() {
+    let seq = box_room();
+    let with_local = |threads: bool| {
+        let mut cfg = config(threads);
+        cfg.tracking.local_keyframes = 2;
+        slam(&seq, box_camera(), cfg, DepthMode::Sensor, false)
+            .run(quiet())
+            .unwrap()
+    };
+    let (a, b) = (with_local(false), with_local(true));
+    assert_eq!(a.trajectory().poses, b.trajectory().poses);
+    let e = ate(&a, &seq, Alignment::Se3);
+    assert!(e < 0.025, "ATE {e}");
+    // The other keyframes are matched: the trajectory is not the reference-only one.
+    let reference_only = slam(&seq, box_camera(), config(false), DepthMode::Sensor, false)
+        .run(quiet())
+        .unwrap();
+    assert_ne!(a.trajectory().poses, reference_only.trajectory().poses);
+}
+
+#[test]
 fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
     let src = box_room();
     let dir = tmp_dir("box_bad");

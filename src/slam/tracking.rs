@@ -15,7 +15,7 @@
 //! trajectory composes each frame's pose relative to its reference keyframe with
 //! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
 
-use super::config::SlamConfig;
+use super::config::{LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
@@ -562,10 +562,59 @@ impl Tracker {
                 reference: false,
             });
         }
+        let local: Vec<(usize, Vec<Option<Point3<f64>>>)> = self
+            .local_keyframes(reference, predicted)
+            .into_iter()
+            .map(|k| {
+                let kf = &self.keyframes[k];
+                let world = kf.data.points_cam.iter().map(|p| p.map(|p| kf.pose * p));
+                (k, world.collect())
+            })
+            .collect();
+        for (k, world) in &local {
+            sources.push(Source {
+                features: &self.keyframes[*k].data.features,
+                world,
+                reference: false,
+            });
+        }
         let guide = self.cfg.matcher.predict_window.then_some(predicted);
         let corr = self.correspond(&sources, current, guide, &self.cfg.matcher.range());
         let result = self.pnp(&corr, Some(predicted))?;
         Some((result, corr))
+    }
+
+    /// The local map's other keyframes to match against: of the last
+    /// [`LOCAL_CANDIDATES`] keyframes but `reference`, the `tracking.local_keyframes`
+    /// with the most 3D points inside the view of the `predicted` camera-to-world pose (at
+    /// least a tenth of the reference keyframe's, so a keyframe seen barely adds nothing
+    /// but false matches).
+    fn local_keyframes(&self, reference: usize, predicted: &Pose) -> Vec<usize> {
+        let wanted = self.cfg.tracking.local_keyframes;
+        if wanted == 0 {
+            return Vec::new();
+        }
+        let world_to_cam = predicted.inverse();
+        let bounds = ViewBounds::new(&self.camera);
+        let visible = |k: usize| {
+            let kf = &self.keyframes[k];
+            let to_cam = world_to_cam * kf.pose;
+            kf.data
+                .points_cam
+                .iter()
+                .flatten()
+                .filter(|p| bounds.contains(&(to_cam * *p)))
+                .count()
+        };
+        let floor = (visible(reference) / 10).max(self.cfg.pnp.min_inliers);
+        let first = self.keyframes.len().saturating_sub(LOCAL_CANDIDATES);
+        let mut seen: Vec<(usize, usize)> = (first..self.keyframes.len())
+            .filter(|&k| k != reference)
+            .map(|k| (visible(k), k))
+            .filter(|&(n, _)| n >= floor)
+            .collect();
+        seen.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.cmp(&a.1)));
+        seen.into_iter().take(wanted).map(|(_, k)| k).collect()
     }
 
     /// Relocalisation: the reference keyframe, then those with the most similar

@@ -210,12 +210,20 @@ impl PnpSettings {
     }
 }
 
+/// How many of the most recent keyframes [`TrackingConfig::local_keyframes`] chooses from.
+pub const LOCAL_CANDIDATES: usize = 20;
+
 /// Frame tracking (section IV-B).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrackingConfig {
     /// Also match against the previous frame (not only the reference keyframe).
     pub match_previous_frame: bool,
+    /// Also match against this many other keyframes of the local map: of the last
+    /// [`LOCAL_CANDIDATES`] keyframes, those with the most 3D points inside the predicted
+    /// view (ORB-SLAM's tracking against the local map, section IV-B's reference keyframe
+    /// extended). 0: the reference keyframe (and previous frame) only.
+    pub local_keyframes: usize,
     /// Depth readings outside `[min_depth, max_depth]` metres give no 3D point.
     pub min_depth: f64,
     pub max_depth: f64,
@@ -233,6 +241,7 @@ impl Default for TrackingConfig {
     fn default() -> Self {
         TrackingConfig {
             match_previous_frame: true,
+            local_keyframes: 0,
             min_depth: 0.1,
             max_depth: 6.0,
             relocalisation_candidates: 5,

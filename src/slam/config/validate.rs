@@ -52,6 +52,12 @@ impl SlamConfig {
             "pnp.refine_iterations",
         )?;
         count(
+            self.tracking.local_keyframes,
+            0,
+            super::LOCAL_CANDIDATES,
+            "tracking.local_keyframes",
+        )?;
+        count(
             self.tracking.relocalisation_candidates,
             0,
             1000,

@@ -251,6 +251,27 @@ mod tests {
 
     #[test]
     #[allow(deprecated)]
+    fn a_nan_wins_its_window_and_takes_the_gradient() {
+        // Channel 0 holds a NaN at its centre and a second one at the last corner; channel 1
+        // none (the fast path).
+        let mut v: Vec<f32> = (0..18).map(|i| (i % 7) as f32).collect();
+        v[4] = f32::NAN;
+        v[8] = f32::NAN;
+        for device in [Device::ndarray(), Device::flex()] {
+            let x = Tensor::<4>::from_data(TensorData::new(v.clone(), [1, 2, 3, 3]), &device);
+            let up = Tensor::<4>::ones([1, 2, 3, 3], &device);
+            let [y, g] = run(&device, &x, &up, |x| max_pool2d_same(x, 3));
+            assert!(y[..9].iter().all(|v| v.is_nan()), "{y:?}");
+            // The first NaN in row-major order of each window: the centre's, in every one.
+            assert_eq!(&g[..9], &[0., 0., 0., 0., 9., 0., 0., 0., 0.]);
+            let plain: Vec<f32> = v[9..].to_vec();
+            assert_eq!(y[9..], [6., 6., 6., 6., 6., 6., 6., 6., 6.], "{plain:?}");
+            assert_eq!(g[9..].iter().sum::<f32>(), 9.0);
+        }
+    }
+
+    #[test]
+    #[allow(deprecated)]
     fn works_without_autodiff() {
         let d = Device::flex();
         let x = Tensor::<4>::random([1, 2, 5, 6], Distribution::Default, &d);

@@ -91,7 +91,7 @@ pub fn max_pool2d_same(x: Tensor<4>, kernel: usize) -> Tensor<4> {
 }
 
 /// Waits for a future that a CPU backend has already completed.
-fn ready<T>(future: impl std::future::Future<Output = T>) -> T {
+pub(super) fn ready<T>(future: impl std::future::Future<Output = T>) -> T {
     let mut future = std::pin::pin!(future);
     let mut cx = std::task::Context::from_waker(std::task::Waker::noop());
     loop {
@@ -103,7 +103,7 @@ fn ready<T>(future: impl std::future::Future<Output = T>) -> T {
 }
 
 /// The tensor's values as `f32`, its shape and its dtype.
-fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DType) {
+pub(super) fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DType) {
     let shape = t.shape().to_vec();
     let dtype = t.dtype();
     let data = ready(B::float_into_data(t)).expect("a CPU tensor reads back");
@@ -114,7 +114,7 @@ fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DType) {
     (v, shape, dtype)
 }
 
-fn tensor<B: Backend>(
+pub(super) fn tensor<B: Backend>(
     v: Vec<f32>,
     shape: Vec<usize>,
     dtype: DType,

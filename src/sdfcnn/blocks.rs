@@ -1,11 +1,11 @@
 //! SDFCNN building blocks (Fig. 6, Table 13): convbnrelu, the MobileNetV2 inverted-residual
 //! block and Light-Weight RefineNet's chained residual pooling (CRP).
 
+use crate::nn::relu6;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
-use burn::tensor::activation::relu6;
 
 use crate::nn::{ShapeTrace, conv2d, max_pool2d};
 

@@ -52,15 +52,7 @@ use crate::training::{RunDir, RunOptions, batch_rng};
 /// overrides `opts`.
 pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<()> {
     let mut cfg = SdfcnnTrainConfig::parse(config_text, config_path)?.resolved(config_path);
-    if let Some(e) = opts.epochs {
-        cfg.epochs = e;
-    }
-    if let Some(b) = opts.backend {
-        cfg.backend = b;
-    }
-    if let Some(o) = &opts.out {
-        cfg.out = o.clone();
-    }
+    opts.apply(&mut cfg.epochs, &mut cfg.backend, &mut cfg.out);
     // A backend not compiled in, without a device, or not trusted to train fails before any
     // data is read.
     cfg.backend

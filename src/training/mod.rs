@@ -51,6 +51,26 @@ pub struct RunOptions {
     pub quiet: bool,
 }
 
+impl RunOptions {
+    /// Writes the command-line overrides into a config's skeleton fields.
+    pub fn apply(
+        &self,
+        epochs: &mut usize,
+        backend: &mut BackendKind,
+        out: &mut std::path::PathBuf,
+    ) {
+        if let Some(e) = self.epochs {
+            *epochs = e;
+        }
+        if let Some(b) = self.backend {
+            *backend = b;
+        }
+        if let Some(o) = &self.out {
+            *out = o.clone();
+        }
+    }
+}
+
 /// The `model = "..."` key that says which network a training config is for.
 pub fn config_model(toml_text: &str, path: &std::path::Path) -> crate::Result<String> {
     let value: toml::Table =

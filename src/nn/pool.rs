@@ -128,7 +128,8 @@ pub(super) mod tests {
         t.into_data().try_to_vec::<f32>().expect("f32 tensor")
     }
 
-    /// Output and input gradient of `pool` on the autodiff version of `device`.
+    /// Output and input gradient of `pool` (any op on a 4-D tensor) on the autodiff version of
+    /// `device`.
     pub(in crate::nn) fn run(
         device: &Device,
         x: &Tensor<4>,

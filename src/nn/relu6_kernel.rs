@@ -137,23 +137,8 @@ fn backward<B: Backend>(grad: FloatTensor<B>, pass: &[u8]) -> FloatTensor<B> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nn::pool::tests::run;
     use burn::tensor::{Distribution, TensorData};
-
-    /// Values and input gradients of `f` on `device` with autodiff, for upstream `up`.
-    fn run(
-        device: &Device,
-        x: &Tensor<4>,
-        up: &Tensor<4>,
-        f: impl Fn(Tensor<4>) -> Tensor<4>,
-    ) -> [Vec<f32>; 2] {
-        let device = device.clone().autodiff();
-        let x = Tensor::<4>::from_data(x.to_data(), &device).require_grad();
-        let up = Tensor::<4>::from_data(up.to_data(), &device);
-        let y = f(x.clone());
-        let grads = (y.clone() * up).sum().backward();
-        let v = |t: Tensor<4>| t.into_data().convert::<f32>().to_vec::<f32>().unwrap();
-        [v(y), v(x.grad(&grads).expect("input grad"))]
-    }
 
     #[test]
     fn equals_burns_relu6_bit_for_bit_edges_and_nan_included() {

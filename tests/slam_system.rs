@@ -290,6 +290,12 @@ fn synthetic_rgbd_with_ground_truth_labels_builds_an_accurate_semantic_map() {
     assert!(out.map.keyframes.len() >= 3);
     // The path comes back to its start: correction finds loop constraints.
     assert!(out.map.loop_constraints() > 0);
+    // Bundle adjustment (on by default) ran over tracks and lowered its cost.
+    let ba = out.adjustment.expect("bundle adjustment is on by default");
+    assert!(
+        ba.tracks > 0 && ba.free_keyframes < ba.keyframes && ba.final_cost < ba.initial_cost,
+        "{ba:?}"
+    );
     let dir = tmp_dir("box_out");
     let sequence = TumSequence::open(&seq).unwrap();
     let report = write_outputs(&out, &sequence, &box_camera(), &cfg, &dir).unwrap();
@@ -322,6 +328,9 @@ fn synthetic_rgbd_with_ground_truth_labels_builds_an_accurate_semantic_map() {
         serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["frames_processed"], 24);
     assert!(json["ate"]["stats"]["rmse"].as_f64().unwrap() < 0.025);
+    assert_eq!(json["bundle_adjustment"]["tracks"], ba.tracks);
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(md.contains("Bundle adjustment:"), "{md}");
 }
 
 #[test]

@@ -16,6 +16,7 @@
 //! constraints known, so its result does not depend on when it runs: threaded
 //! and single-thread runs agree.
 
+use super::bundle_adjustment::{BaSummary, adjust_map, match_groups};
 use super::config::SlamConfig;
 use super::keypoints::similarity;
 use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
@@ -242,6 +243,14 @@ impl Corrector {
         Some(summary)
     }
 
+    /// Bundle adjustment of the whole map from its current poses, with the pose graph's
+    /// edges ([`super::bundle_adjustment::adjust_map`]).
+    pub fn bundle_adjust(&self, map: &SharedMap, monocular: bool) -> Option<BaSummary> {
+        let mut m = write(map);
+        let edges = self.edges(&m, m.keyframes.len());
+        adjust_map(&mut m, &edges, &self.camera, &self.cfg, monocular)
+    }
+
     fn edges(&self, m: &Map, n: usize) -> Vec<Edge> {
         let c = &self.cfg.correction;
         let it = 1.0 / (c.sigma_translation * c.sigma_translation);
@@ -267,14 +276,6 @@ impl Corrector {
     }
 }
 
-fn find(parent: &mut [usize], mut x: usize) -> usize {
-    while parent[x] != x {
-        parent[x] = parent[parent[x]];
-        x = parent[x];
-    }
-    x
-}
-
 /// Local correction: unifies matched keypoints into world points and rescales
 /// keyframe depths (see the module documentation). Sets `depth_scale` of each
 /// keyframe and returns what it did and the unified points.
@@ -288,45 +289,11 @@ pub fn local_correction(
         max_scale: 1.0,
         ..Default::default()
     };
-    let offsets: Vec<usize> = map
-        .keyframes
-        .iter()
-        .scan(0, |acc, k| {
-            let o = *acc;
-            *acc += k.track.features.len();
-            Some(o)
-        })
-        .collect();
-    let total = map.keyframes.iter().map(|k| k.track.features.len()).sum();
-    let mut parent: Vec<usize> = (0..total).collect();
     let n_kf = map.keyframes.len();
-    for c in &map.constraints {
-        if c.a >= n_kf || c.b >= n_kf {
-            continue;
-        }
-        for &(ia, ib) in &c.matches {
-            let (x, y) = (offsets[c.a] + ia as usize, offsets[c.b] + ib as usize);
-            if x < total && y < total {
-                let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
-                if rx != ry {
-                    parent[rx.max(ry)] = rx.min(ry);
-                }
-            }
-        }
-    }
-    // Groups of observations (keyframe, keypoint) with 3D points.
-    let mut groups: std::collections::BTreeMap<usize, Vec<(usize, usize)>> = Default::default();
-    for (k, kf) in map.keyframes.iter().enumerate() {
-        for (i, p) in kf.track.points_cam.iter().enumerate() {
-            if p.is_some() {
-                let root = find(&mut parent, offsets[k] + i);
-                groups.entry(root).or_default().push((k, i));
-            }
-        }
-    }
+    let groups = match_groups(map);
     let mut landmarks = Vec::new();
     let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); n_kf];
-    for obs in groups.values().filter(|g| g.len() >= 2) {
+    for obs in groups.iter().filter(|g| g.len() >= 2) {
         let world: Vec<Point3<f64>> = obs
             .iter()
             .filter_map(|&(k, i)| {

@@ -16,6 +16,7 @@
 //!   sequence of a run with no arguments are the binaries' concern
 //!   ([`crate::bundled`]).
 
+pub mod bundle_adjustment;
 pub mod config;
 pub mod correction;
 pub mod depth_alignment;

@@ -145,6 +145,32 @@ fn whitened2(err: &Vector6<f64>, info: &Vector6<f64>) -> f64 {
     err.component_mul(err).dot(info)
 }
 
+/// An edge linearised at the current poses.
+pub(super) struct EdgeTerms {
+    /// Robust cost.
+    pub cost: f64,
+    /// Information times the robust kernel's weight.
+    pub omega: Matrix6<f64>,
+    pub err: Vector6<f64>,
+    /// `∂e/∂δ_i` and `∂e/∂δ_j`.
+    pub ji: Matrix6<f64>,
+    pub jj: Matrix6<f64>,
+}
+
+/// The error of an edge, its robust cost and weight, and its Jacobians.
+pub(super) fn edge_terms(poses: &[Pose], e: &Edge, kernel: RobustKernel, delta: f64) -> EdgeTerms {
+    let err = edge_error(poses, e);
+    let (cost, w) = robust(kernel, delta, whitened2(&err, &e.information));
+    let jr = jr_inv(&err);
+    EdgeTerms {
+        cost,
+        omega: Matrix6::from_diagonal(&(e.information * w)),
+        err,
+        ji: -jr * adjoint(&(poses[e.j].inverse() * poses[e.i])),
+        jj: jr,
+    }
+}
+
 /// Total robust cost.
 pub fn cost(poses: &[Pose], edges: &[Edge], settings: &LmSettings) -> f64 {
     edges
@@ -178,12 +204,9 @@ impl Normal {
             g: vec![Vector6::zeros(); n],
         };
         for e in edges {
-            let err = edge_error(poses, e);
-            let (_, w) = robust(s.kernel, s.delta, whitened2(&err, &e.information));
-            let omega = Matrix6::from_diagonal(&(e.information * w));
-            let jr = jr_inv(&err);
-            let jj = jr;
-            let ji = -jr * adjoint(&(poses[e.j].inverse() * poses[e.i]));
+            let EdgeTerms {
+                omega, err, ji, jj, ..
+            } = edge_terms(poses, e, s.kernel, s.delta);
             let vars = [(e.i, ji), (e.j, jj)];
             for (a, ja) in vars {
                 if a == 0 {

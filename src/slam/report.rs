@@ -129,6 +129,9 @@ pub struct Report {
     pub semantic_failures: Vec<(usize, String)>,
     pub correction: super::correction::CorrectionStats,
     pub local_correction: super::correction::LocalSummary,
+    /// The final bundle adjustment (`None`: off).
+    #[serde(default)]
+    pub bundle_adjustment: Option<super::bundle_adjustment::BaSummary>,
     /// Multi-view depth of monocular keyframes (zero in RGB-D mode).
     #[serde(default)]
     pub multiview: super::multiview_depth::SweepSummary,
@@ -219,6 +222,7 @@ impl Report {
             semantic_failures: out.semantic_failures.clone(),
             correction: out.correction.clone(),
             local_correction: out.local.clone(),
+            bundle_adjustment: out.adjustment,
             multiview: out.multiview,
             outputs: Vec::new(),
         }
@@ -414,6 +418,21 @@ impl Report {
             self.local_correction.min_scale,
             self.local_correction.max_scale
         );
+        if let Some(b) = &self.bundle_adjustment {
+            let _ = writeln!(
+                s,
+                "\nBundle adjustment: {} of {} keyframes free, {} tracks with {} observations ({} dropped by the chi-square gate); cost {:.1} -> {:.1} in {} iterations, {:.3} s.",
+                b.free_keyframes,
+                b.keyframes,
+                b.tracks,
+                b.observations,
+                b.outliers,
+                b.initial_cost,
+                b.final_cost,
+                b.iterations,
+                b.seconds
+            );
+        }
         if self.multiview.candidates > 0 {
             let m = &self.multiview;
             let _ = writeln!(

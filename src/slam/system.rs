@@ -6,6 +6,7 @@
 //! corrected poses, correction candidates depend only on earlier keyframes, and
 //! the final pose graph is solved from the tracked poses with all constraints.
 
+use super::bundle_adjustment::BaSummary;
 use super::config::SlamConfig;
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::keypoints::KeypointSource;
@@ -162,6 +163,8 @@ pub struct SlamOutput {
     /// Unified world points of local correction.
     pub landmarks: Vec<Point3<f64>>,
     pub local: LocalSummary,
+    /// The final bundle adjustment (`None`: off).
+    pub adjustment: Option<BaSummary>,
     /// Multi-view depth of monocular keyframes, summed over keyframes.
     pub multiview: SweepSummary,
     pub tracking: TrackingCounters,
@@ -475,6 +478,7 @@ impl Slam {
         // Final correction from all constraints, local correction, re-fusion.
         let t = Instant::now();
         correction.corrector.optimise(&map);
+        let adjustment = correction.corrector.bundle_adjust(&map, monocular);
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
         mapper.refuse_all();
         timings.finalisation.add(t);
@@ -499,6 +503,7 @@ impl Slam {
             semantic_map,
             landmarks,
             local,
+            adjustment,
             multiview,
             tracking: run.tracker.counters.clone(),
             correction: correction.corrector.stats,

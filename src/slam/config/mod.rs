@@ -30,6 +30,7 @@ pub struct SlamConfig {
     pub multiview: MultiviewConfig,
     pub labels: LabelVoteConfig,
     pub correction: CorrectionConfig,
+    pub bundle_adjustment: BundleAdjustmentConfig,
     pub system: SystemConfig,
 }
 
@@ -556,6 +557,50 @@ impl Default for CorrectionConfig {
     }
 }
 
+/// Bundle adjustment of the keyframe poses and the points their matched keypoints observe
+/// ([`crate::slam::bundle_adjustment`]), run after the final pose-graph solve.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BundleAdjustmentConfig {
+    /// Adjust at all.
+    pub enabled: bool,
+    /// Levenberg-Marquardt iterations (two rounds, the χ² gate between them).
+    pub iterations: usize,
+    /// At most this many keyframes are free (the newest; earlier ones stay fixed).
+    pub max_keyframes: usize,
+    /// Standard deviation of a keypoint's position, pixels.
+    pub sigma_px: f64,
+    /// Huber scale on the whitened residual norm.
+    pub huber: f64,
+    /// Squared whitened residual beyond which an observation is dropped after round one.
+    pub outlier_chi2: f64,
+    /// Baseline × focal length of the depth term for sensor depth (RGB-D), pixel metres
+    /// (ORB-SLAM's `Camera.bf` for TUM is 40; 400 is a depth σ of z²/400, 1 cm at 2 m, near
+    /// a Kinect's noise); 0: reprojection only.
+    pub depth_bf: f64,
+    /// The same for SDFCNN's predicted depth (monocular mode).
+    pub predicted_depth_bf: f64,
+    /// The pose graph's relative-pose edges (`[correction]` sigmas) join the adjustment
+    /// with their information times this (0: points only).
+    pub edge_weight: f64,
+}
+
+impl Default for BundleAdjustmentConfig {
+    fn default() -> Self {
+        BundleAdjustmentConfig {
+            enabled: true,
+            iterations: 20,
+            max_keyframes: 300,
+            sigma_px: 1.0,
+            huber: 2.796,
+            outlier_chi2: 7.815,
+            depth_bf: 400.0,
+            predicted_depth_bf: 4.0,
+            edge_weight: 1.0,
+        }
+    }
+}
+
 /// Threads and reporting.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -655,6 +700,14 @@ mod tests {
             ("dense", "huber", "nan"),
             ("dense", "min_inlier_fraction", "2"),
             ("dense", "agree_rotation_deg", "-1"),
+            ("bundle_adjustment", "iterations", "100000"),
+            ("bundle_adjustment", "max_keyframes", "100000"),
+            ("bundle_adjustment", "sigma_px", "0"),
+            ("bundle_adjustment", "huber", "nan"),
+            ("bundle_adjustment", "outlier_chi2", "-1"),
+            ("bundle_adjustment", "depth_bf", "-1"),
+            ("bundle_adjustment", "predicted_depth_bf", "inf"),
+            ("bundle_adjustment", "edge_weight", "-1"),
         ] {
             let text = format!("[{section}]\n{field} = {value}\n");
             let e = SlamConfig::parse(&text, Path::new("c.toml"))

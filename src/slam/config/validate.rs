@@ -12,6 +12,7 @@ impl SlamConfig {
         self.validate_multiview()?;
         self.validate_dense()?;
         self.validate_correction()?;
+        self.validate_bundle_adjustment()?;
         Ok(())
     }
 
@@ -279,6 +280,31 @@ impl SlamConfig {
             return Err("correction.min_id_gap must be at least 1".into());
         }
         pos(self.system.position_tolerance, "system.position_tolerance")?;
+        Ok(())
+    }
+}
+
+impl SlamConfig {
+    /// Bundle adjustment: bounded iterations and keyframes (the reduced system is dense,
+    /// 6 rows per free keyframe), positive scales, non-negative depth weights.
+    fn validate_bundle_adjustment(&self) -> std::result::Result<(), String> {
+        let b = &self.bundle_adjustment;
+        count(b.iterations, 1, 200, "bundle_adjustment.iterations")?;
+        count(b.max_keyframes, 1, 1000, "bundle_adjustment.max_keyframes")?;
+        pos(b.sigma_px, "bundle_adjustment.sigma_px")?;
+        pos(b.huber, "bundle_adjustment.huber")?;
+        pos(b.outlier_chi2, "bundle_adjustment.outlier_chi2")?;
+        for (v, name) in [
+            (b.depth_bf, "bundle_adjustment.depth_bf"),
+            (b.predicted_depth_bf, "bundle_adjustment.predicted_depth_bf"),
+            (b.edge_weight, "bundle_adjustment.edge_weight"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!(
+                    "{name} must be a non-negative number (0: off), got {v}"
+                ));
+            }
+        }
         Ok(())
     }
 }

@@ -1,0 +1,764 @@
+//! Bundle adjustment (ORB-SLAM's local / global BA, Mur-Artal & Tardós 2017): keyframe
+//! poses and the world points their matched keypoints observe, optimised together.
+//!
+//! A *track* is one world point seen by several keyframes: the keypoints that data
+//! correction's verified pairs matched ([`super::map::Constraint::matches`]), joined
+//! transitively ([`tracks`]); a track in which one keyframe appears twice is dropped.
+//! Each observation contributes, in pixels, the reprojection error of the undistorted
+//! keypoint and, where the keypoint has a depth, ORB-SLAM's RGB-D term
+//! `bf (1/z − 1/d)`: the disparity error of a virtual stereo pair of baseline-focal
+//! product `bf`, so that depth counts less the farther it is, as a Kinect's noise grows.
+//! The cost is Huber-robust on the whitened residual; after the first half of the
+//! iterations, observations beyond the χ² gate are dropped (ORB-SLAM's two rounds).
+//!
+//! Poses are camera-to-world and perturbed on the right, `T ← T exp(δ)` as in
+//! [`super::pose_graph`]; the normal equations are reduced to the poses by the Schur
+//! complement over the points (3x3 blocks) and solved densely by Cholesky with
+//! Levenberg-Marquardt damping. No crate in reach fitted: the sparse solver crates
+//! (`factrs`, `tiny-solver`, `apex-solver`) are not available offline here, and the problem
+//! is small (tens of poses, thousands of points).
+
+use super::config::{RobustKernel, SlamConfig};
+use super::map::Map;
+use super::pose_graph::{Edge, EdgeTerms, edge_terms, se3_exp};
+use crate::camera::Camera;
+use crate::geometry::{Pose, renormalized};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Point2, Point3, Vector2, Vector3, Vector6};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Solver settings (see `[bundle_adjustment]` in `configs/slam/default.toml`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BaSettings {
+    /// Levenberg-Marquardt iterations (both rounds together).
+    pub iterations: usize,
+    /// Standard deviation of a keypoint's position, pixels.
+    pub sigma_px: f64,
+    /// Huber scale on the whitened residual norm.
+    pub huber: f64,
+    /// Observations whose squared whitened residual exceeds this after the first round
+    /// are dropped (ORB-SLAM: 5.991 for two dof, 7.815 for three).
+    pub outlier_chi2: f64,
+    /// Baseline times focal length of the depth term, pixel metres (0: no depth term).
+    pub depth_bf: f64,
+    /// Robust kernel and scale of the relative-pose edges.
+    pub edge_kernel: RobustKernel,
+    pub edge_delta: f64,
+}
+
+/// One keyframe's view of a track.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observation {
+    pub keyframe: usize,
+    /// Undistorted normalised image coordinates of the keypoint.
+    pub normalized: Vector2<f64>,
+    /// Measured depth (z) of the keypoint, metres.
+    pub depth: Option<f64>,
+    /// Cleared when the observation fails the χ² gate.
+    pub inlier: bool,
+}
+
+/// A world point and the keyframes that observe it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Track {
+    pub point: Point3<f64>,
+    pub observations: Vec<Observation>,
+}
+
+/// What an adjustment did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct BaSummary {
+    pub keyframes: usize,
+    pub free_keyframes: usize,
+    pub tracks: usize,
+    pub observations: usize,
+    /// Observations dropped by the χ² gate.
+    pub outliers: usize,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    pub iterations: usize,
+    /// Wall time of the whole adjustment (tracks included), seconds.
+    #[serde(default)]
+    pub seconds: f64,
+}
+
+/// The tracks of a map: keypoints joined by the matches of its constraints, each with a
+/// 3D point (sensor or predicted depth), at least two keyframes, no keyframe twice; the
+/// point starts at the mean of the observations' back-projections from the current poses.
+pub fn tracks(map: &Map, camera: &Camera) -> Vec<Track> {
+    let mut groups = match_groups(map);
+    groups.retain(|g| {
+        g.len() >= 2 && g.windows(2).all(|w| w[0].0 != w[1].0) // sorted by keyframe
+    });
+    groups
+        .into_iter()
+        .map(|g| {
+            let mut sum = Vector3::zeros();
+            let observations = g
+                .iter()
+                .map(|&(k, i)| {
+                    let kf = &map.keyframes[k];
+                    let p = kf.track.points_cam[i].expect("groups hold keypoints with 3D points");
+                    sum += (kf.pose * p).coords;
+                    let px = kf.track.features.points[i];
+                    Observation {
+                        keyframe: k,
+                        normalized: camera.normalized(&Point2::new(px[0] as f64, px[1] as f64)),
+                        depth: Some(p.z),
+                        inlier: true,
+                    }
+                })
+                .collect();
+            Track {
+                point: Point3::from(sum / g.len() as f64),
+                observations,
+            }
+        })
+        .collect()
+}
+
+/// Groups of `(keyframe, keypoint)` joined by the constraints' matches (union-find), each
+/// sorted, keypoints with a 3D point only, in order of their first member.
+pub fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
+    let offsets: Vec<usize> = map
+        .keyframes
+        .iter()
+        .scan(0, |acc, k| {
+            let o = *acc;
+            *acc += k.track.features.len();
+            Some(o)
+        })
+        .collect();
+    let total = map.keyframes.iter().map(|k| k.track.features.len()).sum();
+    let mut parent: Vec<usize> = (0..total).collect();
+    let n_kf = map.keyframes.len();
+    for c in &map.constraints {
+        if c.a >= n_kf || c.b >= n_kf {
+            continue;
+        }
+        for &(ia, ib) in &c.matches {
+            let (x, y) = (offsets[c.a] + ia as usize, offsets[c.b] + ib as usize);
+            if x < total && y < total {
+                let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
+                if rx != ry {
+                    parent[rx.max(ry)] = rx.min(ry);
+                }
+            }
+        }
+    }
+    let mut groups: BTreeMap<usize, Vec<(usize, usize)>> = BTreeMap::new();
+    for (k, kf) in map.keyframes.iter().enumerate() {
+        for (i, p) in kf.track.points_cam.iter().enumerate() {
+            if p.is_some() {
+                let root = find(&mut parent, offsets[k] + i);
+                groups.entry(root).or_default().push((k, i));
+            }
+        }
+    }
+    groups.into_values().collect()
+}
+
+fn find(parent: &mut [usize], mut x: usize) -> usize {
+    while parent[x] != x {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    x
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The geometry of one observation at the current estimate.
+struct Residual {
+    /// Whitened residual (u, v, depth; the third 0 without a depth term).
+    r: Vector3<f64>,
+    /// ∂r/∂δ of the pose and ∂r/∂X of the world point.
+    j_pose: Matrix3x6<f64>,
+    j_point: Matrix3<f64>,
+}
+
+/// Camera intrinsics the residuals need.
+#[derive(Debug, Clone, Copy)]
+struct Scales {
+    fx: f64,
+    fy: f64,
+    /// `1 / sigma_px`.
+    whiten: f64,
+    bf: f64,
+}
+
+fn residual(pose: &Pose, point: &Point3<f64>, obs: &Observation, s: Scales) -> Option<Residual> {
+    let rt = pose.rotation.inverse();
+    let pc = rt * (point - pose.translation.vector);
+    if pc.z <= 1e-3 {
+        return None;
+    }
+    let iz = 1.0 / pc.z;
+    let (x, y) = (pc.x * iz, pc.y * iz);
+    let depth = obs.depth.filter(|_| s.bf > 0.0);
+    let r = Vector3::new(
+        s.fx * (x - obs.normalized.x),
+        s.fy * (y - obs.normalized.y),
+        depth.map_or(0.0, |d| s.bf * (iz - 1.0 / d)),
+    ) * s.whiten;
+    // ∂r/∂p_c, whitened.
+    let a = Matrix3::new(
+        s.fx * iz,
+        0.0,
+        -s.fx * x * iz,
+        0.0,
+        s.fy * iz,
+        -s.fy * y * iz,
+        0.0,
+        0.0,
+        if depth.is_some() {
+            -s.bf * iz * iz
+        } else {
+            0.0
+        },
+    ) * s.whiten;
+    // p_c = exp(−δ) T⁻¹ X: ∂p_c/∂ρ = −I, ∂p_c/∂φ = [p_c]×; ∂p_c/∂X = Rᵀ.
+    let mut dp = Matrix3x6::zeros();
+    dp.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&-Matrix3::identity());
+    dp.fixed_view_mut::<3, 3>(0, 3).copy_from(&skew(&pc.coords));
+    Some(Residual {
+        r,
+        j_pose: a * dp,
+        j_point: a * rt.to_rotation_matrix().into_inner(),
+    })
+}
+
+/// Huber cost of a squared whitened residual and its IRLS weight.
+fn huber(delta: f64, r2: f64) -> (f64, f64) {
+    let r = r2.sqrt();
+    if r <= delta {
+        (r2, 1.0)
+    } else {
+        (2.0 * delta * r - delta * delta, delta / r)
+    }
+}
+
+/// What stays the same during one adjustment: which poses are free, the edges and the
+/// scales.
+struct Problem<'a> {
+    /// Index of each pose in the reduced system (`usize::MAX`: fixed).
+    slot: Vec<usize>,
+    free: usize,
+    edges: &'a [Edge],
+    scales: Scales,
+    settings: &'a BaSettings,
+}
+
+/// A Levenberg-Marquardt step: increments of the free poses (by slot) and of the points.
+struct Step {
+    poses: Vec<Vector6<f64>>,
+    points: Vec<Vector3<f64>>,
+}
+
+/// A track's share of the reduced system, kept for the back-substitution: its damped
+/// inverse point block `V⁻¹`, gradient, and `Wᵀ` block per free observing pose.
+struct PointBlock {
+    inverse: Matrix3<f64>,
+    gradient: Vector3<f64>,
+    poses: Vec<(usize, Matrix3x6<f64>)>,
+}
+
+impl Problem<'_> {
+    /// Robust cost of every inlier observation (one in front of no camera costs the
+    /// gate) and of every edge.
+    fn cost(&self, poses: &[Pose], tracks: &[Track]) -> f64 {
+        let set = self.settings;
+        let mut cost: f64 = self
+            .edges
+            .iter()
+            .map(|e| edge_terms(poses, e, set.edge_kernel, set.edge_delta).cost)
+            .sum();
+        for t in tracks {
+            for o in t.observations.iter().filter(|o| o.inlier) {
+                cost += match residual(&poses[o.keyframe], &t.point, o, self.scales) {
+                    Some(res) => huber(set.huber, res.r.norm_squared()).0,
+                    None => set.outlier_chi2,
+                };
+            }
+        }
+        cost
+    }
+
+    /// Marks observations beyond the χ² gate (or behind their camera) as outliers;
+    /// returns how many are outliers now.
+    fn gate(&self, poses: &[Pose], tracks: &mut [Track]) -> usize {
+        let mut n = 0;
+        for t in tracks.iter_mut() {
+            let point = t.point;
+            for o in t.observations.iter_mut() {
+                let ok = o.inlier
+                    && residual(&poses[o.keyframe], &point, o, self.scales)
+                        .is_some_and(|r| r.r.norm_squared() <= self.settings.outlier_chi2);
+                o.inlier = ok;
+                n += usize::from(!ok);
+            }
+        }
+        n
+    }
+
+    /// The poses and tracks after a step.
+    fn apply(&self, poses: &[Pose], tracks: &[Track], step: &Step) -> (Vec<Pose>, Vec<Track>) {
+        let poses = poses
+            .iter()
+            .zip(&self.slot)
+            .map(|(p, &i)| match step.poses.get(i) {
+                Some(d) => p * se3_exp(d),
+                None => *p,
+            })
+            .collect();
+        let mut tracks = tracks.to_vec();
+        for (t, d) in tracks.iter_mut().zip(&step.points) {
+            t.point += d;
+        }
+        (poses, tracks)
+    }
+
+    /// One damped Gauss-Newton step, reduced to the poses by the Schur complement.
+    fn step(&self, poses: &[Pose], tracks: &[Track], lambda: f64) -> Option<Step> {
+        let (slot, set) = (&self.slot, self.settings);
+        let dim = 6 * self.free;
+        let mut h = DMatrix::<f64>::zeros(dim, dim);
+        let mut g = DVector::<f64>::zeros(dim);
+        for e in self.edges {
+            let EdgeTerms {
+                omega, err, ji, jj, ..
+            } = edge_terms(poses, e, set.edge_kernel, set.edge_delta);
+            let vars = [(slot[e.i], ji), (slot[e.j], jj)];
+            for &(a, ja) in &vars {
+                if a == usize::MAX {
+                    continue;
+                }
+                let mut ga = g.fixed_view_mut::<6, 1>(6 * a, 0);
+                ga -= ja.transpose() * omega * err;
+                for &(b, jb) in &vars {
+                    if b != usize::MAX {
+                        let mut hab = h.fixed_view_mut::<6, 6>(6 * a, 6 * b);
+                        hab += ja.transpose() * omega * jb;
+                    }
+                }
+            }
+        }
+        let mut blocks: Vec<Option<PointBlock>> = Vec::with_capacity(tracks.len());
+        for t in tracks {
+            let mut hpp = Matrix3::zeros();
+            let mut gp = Vector3::zeros();
+            let mut observers = Vec::new();
+            for o in t.observations.iter().filter(|o| o.inlier) {
+                let Some(res) = residual(&poses[o.keyframe], &t.point, o, self.scales) else {
+                    continue;
+                };
+                let (_, w) = huber(set.huber, res.r.norm_squared());
+                hpp += res.j_point.transpose() * res.j_point * w;
+                gp -= res.j_point.transpose() * res.r * w;
+                let i = slot[o.keyframe];
+                if i != usize::MAX {
+                    let jc = res.j_pose;
+                    let mut hcc = h.fixed_view_mut::<6, 6>(6 * i, 6 * i);
+                    hcc += jc.transpose() * jc * w;
+                    let mut gc = g.fixed_view_mut::<6, 1>(6 * i, 0);
+                    gc -= jc.transpose() * res.r * w;
+                    observers.push((i, res.j_point.transpose() * jc * w));
+                }
+            }
+            let mut damped = hpp;
+            for r in 0..3 {
+                damped[(r, r)] += lambda * hpp[(r, r)].max(1e-9);
+            }
+            // A point seen along one ray only (no depth) has a singular block: it stays
+            // put, its observations acting on the poses alone.
+            let inverse = if hpp.determinant().abs() > 1e-12 {
+                damped.try_inverse()
+            } else {
+                None
+            };
+            blocks.push(inverse.map(|inverse| PointBlock {
+                inverse,
+                gradient: gp,
+                poses: observers,
+            }));
+        }
+        for r in 0..dim {
+            h[(r, r)] += lambda * h[(r, r)].max(1e-9);
+        }
+        // S = U − Σ W V⁻¹ Wᵀ, rhs = g_c − Σ W V⁻¹ g_p.
+        for b in blocks.iter().flatten() {
+            let vg = b.inverse * b.gradient;
+            for (i, wi) in &b.poses {
+                let w_vinv = wi.transpose() * b.inverse;
+                let mut gc = g.fixed_view_mut::<6, 1>(6 * i, 0);
+                gc -= wi.transpose() * vg;
+                for (j, wj) in &b.poses {
+                    let mut sij = h.fixed_view_mut::<6, 6>(6 * i, 6 * j);
+                    sij -= w_vinv * wj;
+                }
+            }
+        }
+        let dx = if dim > 0 {
+            h.cholesky()?.solve(&g)
+        } else {
+            DVector::zeros(0)
+        };
+        let pose_steps: Vec<Vector6<f64>> = (0..self.free)
+            .map(|i| Vector6::from_fn(|r, _| dx[6 * i + r]))
+            .collect();
+        let points = blocks
+            .iter()
+            .map(|b| match b {
+                Some(b) => {
+                    let mut rhs = b.gradient;
+                    for (i, w) in &b.poses {
+                        rhs -= w * pose_steps[*i];
+                    }
+                    b.inverse * rhs
+                }
+                None => Vector3::zeros(),
+            })
+            .collect();
+        dx.iter().all(|c| c.is_finite()).then_some(Step {
+            poses: pose_steps,
+            points,
+        })
+    }
+}
+
+/// Jointly optimises the poses not marked `fixed` and every track's point, with the
+/// relative-pose `edges` (those of [`super::pose_graph`]) as further terms. At least one
+/// pose must be fixed (the gauge); with none, the first is. Returns what it did; poses
+/// and points are only changed by steps that lower the cost.
+pub fn adjust(
+    poses: &mut [Pose],
+    fixed: &[bool],
+    tracks: &mut [Track],
+    edges: &[Edge],
+    camera: &Camera,
+    settings: &BaSettings,
+) -> BaSummary {
+    let mut fixed = fixed.to_vec();
+    fixed.resize(poses.len(), true);
+    if !fixed.iter().any(|&f| f) && !fixed.is_empty() {
+        fixed[0] = true;
+    }
+    let mut slot = vec![usize::MAX; poses.len()];
+    let mut free = 0;
+    for (k, f) in fixed.iter().enumerate() {
+        if !f {
+            slot[k] = free;
+            free += 1;
+        }
+    }
+    let problem = Problem {
+        slot,
+        free,
+        edges,
+        scales: Scales {
+            fx: camera.fx,
+            fy: camera.fy,
+            whiten: 1.0 / settings.sigma_px,
+            bf: settings.depth_bf,
+        },
+        settings,
+    };
+    let mut summary = BaSummary {
+        keyframes: poses.len(),
+        free_keyframes: free,
+        tracks: tracks.len(),
+        observations: tracks.iter().map(|t| t.observations.len()).sum(),
+        ..Default::default()
+    };
+    let mut cost = problem.cost(poses, tracks);
+    summary.initial_cost = cost;
+    let mut lambda = 1e-4;
+    let first_round = settings.iterations.div_ceil(2);
+    let mut gated = false;
+    for it in 0..settings.iterations {
+        if it == first_round {
+            summary.outliers = problem.gate(poses, tracks);
+            cost = problem.cost(poses, tracks);
+            gated = true;
+        }
+        summary.iterations = it + 1;
+        let Some(step) = problem.step(poses, tracks, lambda) else {
+            lambda *= 10.0;
+            continue;
+        };
+        let (trial, trial_tracks) = problem.apply(poses, tracks, &step);
+        let new_cost = problem.cost(&trial, &trial_tracks);
+        if new_cost < cost {
+            let converged = (cost - new_cost) < 1e-9 * cost.max(1e-12);
+            poses.copy_from_slice(&trial);
+            tracks.clone_from_slice(&trial_tracks);
+            cost = new_cost;
+            lambda = (lambda / 3.0).max(1e-9);
+            if converged && gated {
+                break;
+            }
+        } else {
+            lambda *= 4.0;
+            if lambda > 1e8 && gated {
+                break;
+            }
+            lambda = lambda.min(1e8);
+        }
+    }
+    if !gated && settings.iterations > 0 {
+        summary.outliers = problem.gate(poses, tracks);
+        cost = problem.cost(poses, tracks);
+    }
+    summary.final_cost = cost;
+    summary
+}
+
+/// Adjusts a whole map after the final pose-graph solve: every keyframe's pose (the newest
+/// `max_keyframes` free, the first always fixed, and any keyframe no track sees) and the
+/// tracks' points, with the pose graph's `edges` weighted by `edge_weight`. `None` when
+/// off or when there is nothing to adjust.
+pub fn adjust_map(
+    map: &mut Map,
+    edges: &[Edge],
+    camera: &Camera,
+    cfg: &SlamConfig,
+    monocular: bool,
+) -> Option<BaSummary> {
+    let (correction, cfg) = (&cfg.correction, &cfg.bundle_adjustment);
+    let n = map.keyframes.len();
+    if !cfg.enabled || n < 2 {
+        return None;
+    }
+    let started = std::time::Instant::now();
+    let mut tracks = tracks(map, camera);
+    if tracks.is_empty() {
+        return None;
+    }
+    let mut seen = vec![false; n];
+    for o in tracks.iter().flat_map(|t| &t.observations) {
+        seen[o.keyframe] = true;
+    }
+    let first_free = n.saturating_sub(cfg.max_keyframes).max(1);
+    let fixed: Vec<bool> = (0..n).map(|k| k < first_free || !seen[k]).collect();
+    let settings = BaSettings {
+        iterations: cfg.iterations,
+        sigma_px: cfg.sigma_px,
+        huber: cfg.huber,
+        outlier_chi2: cfg.outlier_chi2,
+        depth_bf: if monocular {
+            cfg.predicted_depth_bf
+        } else {
+            cfg.depth_bf
+        },
+        edge_kernel: correction.robust_kernel,
+        edge_delta: correction.robust_delta,
+    };
+    let mut poses: Vec<Pose> = map.keyframes.iter().map(|k| k.pose).collect();
+    let edges: Vec<Edge> = edges
+        .iter()
+        .filter(|e| e.i < n && e.j < n && cfg.edge_weight > 0.0)
+        .map(|e| Edge {
+            information: e.information * cfg.edge_weight,
+            ..e.clone()
+        })
+        .collect();
+    let mut summary = adjust(&mut poses, &fixed, &mut tracks, &edges, camera, &settings);
+    for (kf, p) in map.keyframes.iter_mut().zip(&poses) {
+        kf.pose = renormalized(p);
+    }
+    map.epoch += 1;
+    summary.seconds = started.elapsed().as_secs_f64();
+    Some(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::slam::pose_graph::se3_log;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn settings(depth_bf: f64) -> BaSettings {
+        BaSettings {
+            iterations: 30,
+            sigma_px: 1.0,
+            huber: 2.796,
+            outlier_chi2: 7.815,
+            depth_bf,
+            edge_kernel: RobustKernel::Huber,
+            edge_delta: 3.0,
+        }
+    }
+
+    /// Five cameras along a sideways arc looking at 120 points 2-4 m away, each point
+    /// observed exactly (pixel and depth) by every camera that sees it.
+    fn scene(camera: &Camera) -> (Vec<Pose>, Vec<Track>) {
+        let poses: Vec<Pose> = (0..5)
+            .map(|k| {
+                let a = 0.04 * k as f64;
+                Pose::from_parts(
+                    Translation3::new(0.15 * k as f64, 0.02 * k as f64, 0.0),
+                    UnitQuaternion::from_euler_angles(0.01 * k as f64, -a, 0.0),
+                )
+            })
+            .collect();
+        let mut tracks = Vec::new();
+        for i in 0..120 {
+            let f = i as f64;
+            let point = Point3::new(
+                (f * 0.37).sin() * 1.2 + 0.3,
+                (f * 0.73).cos() * 0.8,
+                2.0 + (f * 0.19).sin().abs() * 2.0,
+            );
+            let observations: Vec<Observation> = poses
+                .iter()
+                .enumerate()
+                .filter_map(|(k, p)| {
+                    let pc = p.inverse() * point;
+                    let px = camera.project(&pc)?;
+                    camera.contains(&px, 0.0).then(|| Observation {
+                        keyframe: k,
+                        normalized: camera.normalized(&px),
+                        depth: Some(pc.z),
+                        inlier: true,
+                    })
+                })
+                .collect();
+            if observations.len() >= 2 {
+                tracks.push(Track {
+                    point,
+                    observations,
+                });
+            }
+        }
+        (poses, tracks)
+    }
+
+    fn perturbed(poses: &[Pose], tracks: &[Track]) -> (Vec<Pose>, Vec<Track>) {
+        let noisy: Vec<Pose> = poses
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let f = k as f64;
+                let xi = Vector6::new(0.02 * f.sin(), -0.015, 0.01 * f, 0.01, -0.008 * f, 0.005);
+                if k == 0 { *p } else { p * se3_exp(&xi) }
+            })
+            .collect();
+        let mut moved = tracks.to_vec();
+        for (i, t) in moved.iter_mut().enumerate() {
+            t.point += Vector3::new(0.03, -0.02, 0.05) * ((i % 7) as f64 / 7.0 - 0.5);
+        }
+        (noisy, moved)
+    }
+
+    fn max_error(a: &[Pose], b: &[Pose]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| se3_log(&(x.inverse() * y)).norm())
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn recovers_poses_and_points_from_exact_observations() {
+        let camera = Camera::tum_fr1();
+        let (truth, tracks) = scene(&camera);
+        assert!(tracks.len() > 80, "{} tracks", tracks.len());
+        for bf in [0.0, 400.0] {
+            let (mut poses, mut moved) = perturbed(&truth, &tracks);
+            assert!(max_error(&poses, &truth) > 0.02);
+            let fixed = [true, false, false, false, false];
+            let s = adjust(&mut poses, &fixed, &mut moved, &[], &camera, &settings(bf));
+            assert!(s.final_cost < 1e-6 * s.initial_cost, "bf {bf}: {s:?}");
+            assert_eq!(s.outliers, 0);
+            // Without depth the scale is free: the arc's shape is still recovered.
+            if bf > 0.0 {
+                assert!(max_error(&poses, &truth) < 1e-5, "{:?}", s);
+                let worst = moved
+                    .iter()
+                    .zip(&tracks)
+                    .map(|(a, b)| (a.point - b.point).norm())
+                    .fold(0.0, f64::max);
+                assert!(worst < 1e-5, "point off by {worst}");
+            }
+            assert_eq!(poses[0], truth[0], "the fixed pose moved");
+        }
+    }
+
+    #[test]
+    fn gross_mismatches_are_gated_and_do_not_bend_the_result() {
+        let camera = Camera::tum_fr1();
+        let (truth, mut tracks) = scene(&camera);
+        // Every tenth track has one observation 25 px off (a wrong match).
+        let mut wrong = 0;
+        for t in tracks.iter_mut().step_by(10) {
+            let o = t.observations.last_mut().unwrap();
+            o.normalized.x += 25.0 / camera.fx;
+            wrong += 1;
+        }
+        let (mut poses, mut moved) = perturbed(&truth, &tracks);
+        let fixed = [true, false, false, false, false];
+        let s = adjust(
+            &mut poses,
+            &fixed,
+            &mut moved,
+            &[],
+            &camera,
+            &settings(400.0),
+        );
+        assert_eq!(s.outliers, wrong, "{s:?}");
+        assert!(max_error(&poses, &truth) < 1e-5, "{s:?}");
+    }
+
+    #[test]
+    fn edges_hold_poses_the_points_leave_free() {
+        let camera = Camera::tum_fr1();
+        let (truth, tracks) = scene(&camera);
+        // Pose 4 observes nothing: only its edge to pose 3 places it.
+        let tracks: Vec<Track> = tracks
+            .into_iter()
+            .map(|mut t| {
+                t.observations.retain(|o| o.keyframe != 4);
+                t
+            })
+            .filter(|t| t.observations.len() >= 2)
+            .collect();
+        let edge = Edge {
+            i: 3,
+            j: 4,
+            measurement: truth[3].inverse() * truth[4],
+            information: Vector6::repeat(1e4),
+        };
+        let (mut poses, mut moved) = perturbed(&truth, &tracks);
+        let fixed = [true, false, false, false, false];
+        adjust(
+            &mut poses,
+            &fixed,
+            &mut moved,
+            &[edge],
+            &camera,
+            &settings(400.0),
+        );
+        assert!(max_error(&poses, &truth) < 1e-4);
+    }
+
+    #[test]
+    fn a_lone_free_pose_without_fixed_ones_keeps_the_gauge() {
+        let camera = Camera::tum_fr1();
+        let (truth, tracks) = scene(&camera);
+        let (mut poses, mut moved) = perturbed(&truth, &tracks);
+        // Nothing fixed: the first pose is held.
+        let s = adjust(
+            &mut poses,
+            &[false; 5],
+            &mut moved,
+            &[],
+            &camera,
+            &settings(400.0),
+        );
+        assert_eq!(s.free_keyframes, 4);
+        assert_eq!(poses[0], truth[0]);
+        assert!(max_error(&poses, &truth) < 1e-5);
+    }
+}

@@ -293,7 +293,10 @@ fn synthetic_rgbd_with_ground_truth_labels_builds_an_accurate_semantic_map() {
     // Bundle adjustment (on by default) ran over tracks and lowered its cost.
     let ba = out.adjustment.expect("bundle adjustment is on by default");
     assert!(
-        ba.tracks > 0 && ba.free_keyframes < ba.keyframes && ba.final_cost < ba.initial_cost,
+        ba.tracks > 0
+            && ba.free_keyframes < ba.keyframes
+            && ba.final_cost < ba.initial_cost
+            && ba.frames_refined > 0,
         "{ba:?}"
     );
     let dir = tmp_dir("box_out");

@@ -18,14 +18,17 @@
 //! (`factrs`, `tiny-solver`, `apex-solver`) are not available offline here, and the problem
 //! is small (tens of poses, thousands of points).
 
-use super::config::{RobustKernel, SlamConfig};
+use super::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
 use super::map::Map;
 use super::pose_graph::{Edge, EdgeTerms, edge_terms, se3_exp};
+use super::tracking::FrameRecord;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x6, Point2, Point3, Vector2, Vector3, Vector6};
+use nalgebra::{
+    DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point2, Point3, Vector2, Vector3, Vector6,
+};
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 /// Solver settings (see `[bundle_adjustment]` in `configs/slam/default.toml`).
 #[derive(Debug, Clone, PartialEq)]
@@ -50,6 +53,8 @@ pub struct BaSettings {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observation {
     pub keyframe: usize,
+    /// The keyframe's keypoint.
+    pub keypoint: usize,
     /// Undistorted normalised image coordinates of the keypoint.
     pub normalized: Vector2<f64>,
     /// Measured depth (z) of the keypoint, metres.
@@ -80,6 +85,9 @@ pub struct BaSummary {
     /// Wall time of the whole adjustment (tracks included), seconds.
     #[serde(default)]
     pub seconds: f64,
+    /// Tracked frames whose pose was refined afterwards against the adjusted points.
+    #[serde(default)]
+    pub frames_refined: usize,
 }
 
 /// The tracks of a map: keypoints joined by the matches of its constraints, each with a
@@ -103,8 +111,9 @@ pub fn tracks(map: &Map, camera: &Camera) -> Vec<Track> {
                     let px = kf.track.features.points[i];
                     Observation {
                         keyframe: k,
+                        keypoint: i,
                         normalized: camera.normalized(&Point2::new(px[0] as f64, px[1] as f64)),
-                        depth: Some(p.z),
+                        depth: (p.z > 1e-6).then_some(p.z),
                         inlier: true,
                     }
                 })
@@ -519,14 +528,14 @@ pub fn adjust(
 /// Adjusts a whole map after the final pose-graph solve: every keyframe's pose (the newest
 /// `max_keyframes` free, the first always fixed, and any keyframe no track sees) and the
 /// tracks' points, with the pose graph's `edges` weighted by `edge_weight`. `None` when
-/// off or when there is nothing to adjust.
+/// off or when there is nothing to adjust; else what it did and the adjusted tracks.
 pub fn adjust_map(
     map: &mut Map,
     edges: &[Edge],
     camera: &Camera,
     cfg: &SlamConfig,
     monocular: bool,
-) -> Option<BaSummary> {
+) -> Option<(BaSummary, Vec<Track>)> {
     let (correction, cfg) = (&cfg.correction, &cfg.bundle_adjustment);
     let n = map.keyframes.len();
     if !cfg.enabled || n < 2 {
@@ -571,7 +580,135 @@ pub fn adjust_map(
     }
     map.epoch += 1;
     summary.seconds = started.elapsed().as_secs_f64();
-    Some(summary)
+    Some((summary, tracks))
+}
+
+/// Refines each tracked frame's pose after the adjustment (ORB-SLAM's motion-only BA):
+/// its PnP inliers against the reference keyframe, now seen at the adjusted track points
+/// (or, for keypoints in no track, at the keyframe's own 3D point from its adjusted pose),
+/// with the same reprojection and depth terms; a frame with fewer than
+/// `pnp.min_inliers` such points keeps its pose. Returns how many frames were refined.
+pub fn refine_frames(
+    map: &Map,
+    tracks: &[Track],
+    frames: &mut [FrameRecord],
+    camera: &Camera,
+    cfg: &SlamConfig,
+    monocular: bool,
+) -> usize {
+    let b = &cfg.bundle_adjustment;
+    if !b.refine_frames {
+        return 0;
+    }
+    let mut adjusted: HashMap<(usize, usize), Point3<f64>> = HashMap::new();
+    for t in tracks {
+        for o in t.observations.iter().filter(|o| o.inlier) {
+            adjusted.insert((o.keyframe, o.keypoint), t.point);
+        }
+    }
+    let scales = Scales {
+        fx: camera.fx,
+        fy: camera.fy,
+        whiten: 1.0 / b.sigma_px,
+        bf: if monocular { 0.0 } else { b.depth_bf },
+    };
+    let (min_depth, max_depth) = (cfg.tracking.min_depth, cfg.tracking.max_depth);
+    let mut refined = 0;
+    for f in frames.iter_mut() {
+        let Some(kf) = f.reference.and_then(|k| map.keyframes.get(k)) else {
+            continue;
+        };
+        let Some(k) = f.reference else { continue };
+        let points: Vec<(Point3<f64>, Observation)> = f
+            .observations
+            .iter()
+            .filter_map(|o| {
+                let i = o.keypoint as usize;
+                let world = match adjusted.get(&(k, i)) {
+                    Some(p) => *p,
+                    None => kf.pose * (*kf.track.points_cam.get(i)?)?,
+                };
+                let px = Point2::new(o.pixel[0] as f64, o.pixel[1] as f64);
+                let depth = o
+                    .depth
+                    .map(f64::from)
+                    .filter(|d| *d >= min_depth.max(1e-6) && *d <= max_depth);
+                Some((
+                    world,
+                    Observation {
+                        keyframe: 0,
+                        keypoint: i,
+                        normalized: camera.normalized(&px),
+                        depth,
+                        inlier: true,
+                    },
+                ))
+            })
+            .collect();
+        if points.len() < cfg.pnp.min_inliers.max(6) {
+            continue;
+        }
+        let start = kf.pose * f.relative;
+        if let Some(pose) = refine_pose(start, points, scales, b) {
+            f.relative = renormalized(&(kf.pose.inverse() * pose));
+            refined += 1;
+        }
+    }
+    refined
+}
+
+/// Gauss-Newton on one pose against fixed points, Huber-weighted; the observations beyond
+/// the χ² gate at the halfway pose are dropped. `None` if no step lowered the cost.
+fn refine_pose(
+    start: Pose,
+    mut points: Vec<(Point3<f64>, Observation)>,
+    s: Scales,
+    b: &BundleAdjustmentConfig,
+) -> Option<Pose> {
+    let cost = |pose: &Pose, points: &[(Point3<f64>, Observation)]| -> f64 {
+        points
+            .iter()
+            .map(|(p, o)| match residual(pose, p, o, s) {
+                Some(r) => huber(b.huber, r.r.norm_squared()).0,
+                None => b.outlier_chi2,
+            })
+            .sum()
+    };
+    let mut pose = start;
+    let mut current = cost(&pose, &points);
+    let mut improved = false;
+    for round in 0..2 {
+        if round == 1 {
+            points.retain(|(p, o)| {
+                residual(&pose, p, o, s).is_some_and(|r| r.r.norm_squared() <= b.outlier_chi2)
+            });
+            current = cost(&pose, &points);
+        }
+        for _ in 0..5 {
+            let mut h = Matrix6::zeros();
+            let mut g = Vector6::zeros();
+            for (p, o) in &points {
+                if let Some(r) = residual(&pose, p, o, s) {
+                    let (_, w) = huber(b.huber, r.r.norm_squared());
+                    h += r.j_pose.transpose() * r.j_pose * w;
+                    g -= r.j_pose.transpose() * r.r * w;
+                }
+            }
+            let Some(dx) = h.cholesky().map(|c| c.solve(&g)) else {
+                break;
+            };
+            let trial = pose * se3_exp(&dx);
+            let c = cost(&trial, &points);
+            // A NaN cost is no improvement either.
+            if c.partial_cmp(&current) != Some(std::cmp::Ordering::Less) {
+                break;
+            }
+            pose = trial;
+            current = c;
+            improved = true;
+        }
+    }
+    improved.then_some(pose)
 }
 
 #[cfg(test)]
@@ -620,6 +757,7 @@ mod tests {
                     let px = camera.project(&pc)?;
                     camera.contains(&px, 0.0).then(|| Observation {
                         keyframe: k,
+                        keypoint: i,
                         normalized: camera.normalized(&px),
                         depth: Some(pc.z),
                         inlier: true,
@@ -760,5 +898,36 @@ mod tests {
         assert_eq!(s.free_keyframes, 4);
         assert_eq!(poses[0], truth[0]);
         assert!(max_error(&poses, &truth) < 1e-5);
+    }
+
+    #[test]
+    fn motion_only_refinement_recovers_a_frame_pose() {
+        let camera = Camera::tum_fr1();
+        let (truth, tracks) = scene(&camera);
+        let b = BundleAdjustmentConfig::default();
+        let s = Scales {
+            fx: camera.fx,
+            fy: camera.fy,
+            whiten: 1.0,
+            bf: b.depth_bf,
+        };
+        // Camera 2's observations of the true points, one of them a 30-px mismatch.
+        let mut points: Vec<(Point3<f64>, Observation)> = tracks
+            .iter()
+            .filter_map(|t| {
+                let o = t.observations.iter().find(|o| o.keyframe == 2)?;
+                Some((t.point, o.clone()))
+            })
+            .collect();
+        assert!(points.len() > 50);
+        points[0].1.normalized.y += 30.0 / camera.fy;
+        let start = truth[2] * se3_exp(&Vector6::new(0.03, -0.02, 0.01, 0.01, 0.02, -0.01));
+        let pose = refine_pose(start, points.clone(), s, &b).expect("a step lowers the cost");
+        let err = se3_log(&(pose.inverse() * truth[2])).norm();
+        assert!(err < 1e-6, "{err}");
+        // From the truth itself no step lowers the cost beyond rounding.
+        if let Some(p) = refine_pose(truth[2], points, s, &b) {
+            assert!(se3_log(&(p.inverse() * truth[2])).norm() < 1e-9);
+        }
     }
 }

@@ -16,7 +16,7 @@
 //! constraints known, so its result does not depend on when it runs: threaded
 //! and single-thread runs agree.
 
-use super::bundle_adjustment::{BaSummary, adjust_map, match_groups};
+use super::bundle_adjustment::{BaSummary, Track, adjust_map, match_groups};
 use super::config::SlamConfig;
 use super::keypoints::similarity;
 use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
@@ -245,7 +245,11 @@ impl Corrector {
 
     /// Bundle adjustment of the whole map from its current poses, with the pose graph's
     /// edges ([`super::bundle_adjustment::adjust_map`]).
-    pub fn bundle_adjust(&self, map: &SharedMap, monocular: bool) -> Option<BaSummary> {
+    pub fn bundle_adjust(
+        &self,
+        map: &SharedMap,
+        monocular: bool,
+    ) -> Option<(BaSummary, Vec<Track>)> {
         let mut m = write(map);
         let edges = self.edges(&m, m.keyframes.len());
         adjust_map(&mut m, &edges, &self.camera, &self.cfg, monocular)

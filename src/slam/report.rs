@@ -421,7 +421,7 @@ impl Report {
         if let Some(b) = &self.bundle_adjustment {
             let _ = writeln!(
                 s,
-                "\nBundle adjustment: {} of {} keyframes free, {} tracks with {} observations ({} dropped by the chi-square gate); cost {:.1} -> {:.1} in {} iterations, {:.3} s.",
+                "\nBundle adjustment: {} of {} keyframes free, {} tracks with {} observations ({} dropped by the chi-square gate); cost {:.1} -> {:.1} in {} iterations, {:.3} s; {} tracked frames refined against the adjusted points.",
                 b.free_keyframes,
                 b.keyframes,
                 b.tracks,
@@ -430,7 +430,8 @@ impl Report {
                 b.initial_cost,
                 b.final_cost,
                 b.iterations,
-                b.seconds
+                b.seconds,
+                b.frames_refined
             );
         }
         if self.multiview.candidates > 0 {

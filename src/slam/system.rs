@@ -6,12 +6,12 @@
 //! corrected poses, correction candidates depend only on earlier keyframes, and
 //! the final pose graph is solved from the tracked poses with all constraints.
 
-use super::bundle_adjustment::BaSummary;
+use super::bundle_adjustment::{BaSummary, refine_frames};
 use super::config::SlamConfig;
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::keypoints::KeypointSource;
 use super::local_mapper::{LocalMapper, MapperInput};
-use super::map::{KeyframeFeatures, Map, SharedMap, write};
+use super::map::{KeyframeFeatures, Map, SharedMap, read, write};
 use super::multiview_depth::SweepSummary;
 use super::semantic_map::SemanticMap;
 use super::semantic_source::SemanticSource;
@@ -461,7 +461,7 @@ impl Slam {
                 f(r, &p);
             }
         };
-        let (run, mut mapper, mut correction) = if config.system.threads {
+        let (mut run, mut mapper, mut correction) = if config.system.threads {
             run_threaded(&frames, stages, &map, config.system.queue, &mut notify)?
         } else {
             run_in_order(&frames, stages, &map, &mut notify)
@@ -478,7 +478,21 @@ impl Slam {
         // Final correction from all constraints, local correction, re-fusion.
         let t = Instant::now();
         correction.corrector.optimise(&map);
-        let adjustment = correction.corrector.bundle_adjust(&map, monocular);
+        let adjustment =
+            correction
+                .corrector
+                .bundle_adjust(&map, monocular)
+                .map(|(mut summary, tracks)| {
+                    summary.frames_refined = refine_frames(
+                        &read(&map),
+                        &tracks,
+                        &mut run.frames,
+                        &camera,
+                        &config,
+                        monocular,
+                    );
+                    summary
+                });
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
         mapper.refuse_all();
         timings.finalisation.add(t);

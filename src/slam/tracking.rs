@@ -58,6 +58,20 @@ pub struct FrameRecord {
     /// PnP inliers and correspondences.
     pub inliers: usize,
     pub correspondences: usize,
+    /// The PnP inliers against the reference keyframe (empty for keyframes and lost
+    /// frames), for the frame's refinement after bundle adjustment.
+    pub observations: Vec<FrameObservation>,
+}
+
+/// A tracked frame's PnP inlier against its reference keyframe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameObservation {
+    /// The reference keyframe's keypoint.
+    pub keypoint: u32,
+    /// The frame's matching keypoint, pixels.
+    pub pixel: [f32; 2],
+    /// Sensor depth at that keypoint (RGB-D mode), metres.
+    pub depth: Option<f32>,
 }
 
 /// A keyframe just created by tracking, for the mapping stage.
@@ -322,6 +336,20 @@ impl Tracker {
             out.record.correspondences = corr.world.len();
             return out;
         }
+        let observations = (0..corr.world.len())
+            .filter(|&k| result.inliers[k] && corr.from_reference[k])
+            .map(|k| {
+                let pixel = input.features.points[corr.current[k]];
+                FrameObservation {
+                    keypoint: corr.source[k] as u32,
+                    pixel,
+                    depth: input
+                        .depth
+                        .filter(|_| !self.monocular)
+                        .and_then(|d| d.at(pixel[0] as f64, pixel[1] as f64)),
+                }
+            })
+            .collect();
         let record = FrameRecord {
             index: input.index,
             stamp: input.stamp,
@@ -332,6 +360,7 @@ impl Tracker {
             odom_pose: pose,
             inliers,
             correspondences: corr.world.len(),
+            observations,
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -380,6 +409,7 @@ impl Tracker {
                     odom_pose: pose,
                     inliers: 0,
                     correspondences: 0,
+                    observations: Vec::new(),
                 },
                 keyframe: None,
                 events,
@@ -435,6 +465,7 @@ impl Tracker {
             odom_pose: pose,
             inliers: 0,
             correspondences: 0,
+            observations: Vec::new(),
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -517,6 +548,7 @@ impl Tracker {
             odom_pose: predicted,
             inliers: 0,
             correspondences: 0,
+            observations: Vec::new(),
         };
         // Keep the last good frame for matching; only its pose moves on.
         if let Some(last) = &mut self.last {

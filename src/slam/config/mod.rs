@@ -583,6 +583,8 @@ pub struct BundleAdjustmentConfig {
     /// The pose graph's relative-pose edges (`[correction]` sigmas) join the adjustment
     /// with their information times this (0: points only).
     pub edge_weight: f64,
+    /// Afterwards, refine each tracked frame's pose against the adjusted points.
+    pub refine_frames: bool,
 }
 
 impl Default for BundleAdjustmentConfig {
@@ -597,6 +599,7 @@ impl Default for BundleAdjustmentConfig {
             depth_bf: 400.0,
             predicted_depth_bf: 4.0,
             edge_weight: 1.0,
+            refine_frames: true,
         }
     }
 }

@@ -20,7 +20,7 @@
 
 use super::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
 use super::map::Map;
-use super::pose_graph::{Edge, EdgeTerms, edge_terms, se3_exp};
+use super::pose_graph::{Edge, EdgeTerms, edge_terms, robust, se3_exp, skew};
 use super::tracking::FrameRecord;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};
@@ -28,7 +28,7 @@ use nalgebra::{
     DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point2, Point3, Vector2, Vector3, Vector6,
 };
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
 /// Solver settings (see `[bundle_adjustment]` in `configs/slam/default.toml`).
 #[derive(Debug, Clone, PartialEq)]
@@ -44,14 +44,16 @@ pub struct BaSettings {
     pub outlier_chi2: f64,
     /// Baseline times focal length of the depth term, pixel metres (0: no depth term).
     pub depth_bf: f64,
-    /// Robust kernel and scale of the relative-pose edges.
+    /// Robust kernel of the relative-pose edges ...
     pub edge_kernel: RobustKernel,
+    /// ... and its scale on the whitened edge error.
     pub edge_delta: f64,
 }
 
 /// One keyframe's view of a track.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observation {
+    /// Index of the observing keyframe (of the poses adjusted).
     pub keyframe: usize,
     /// The keyframe's keypoint.
     pub keypoint: usize,
@@ -66,21 +68,27 @@ pub struct Observation {
 /// A world point and the keyframes that observe it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Track {
+    /// World coordinates, metres.
     pub point: Point3<f64>,
+    /// At most one per keyframe.
     pub observations: Vec<Observation>,
 }
 
 /// What an adjustment did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct BaSummary {
+    /// Poses in the problem, and how many of them were free.
     pub keyframes: usize,
     pub free_keyframes: usize,
+    /// Tracks and their observations.
     pub tracks: usize,
     pub observations: usize,
     /// Observations dropped by the χ² gate.
     pub outliers: usize,
+    /// Robust cost before and after (the latter over the gated observations).
     pub initial_cost: f64,
     pub final_cost: f64,
+    /// Levenberg-Marquardt iterations run.
     pub iterations: usize,
     /// Wall time of the whole adjustment (tracks included), seconds.
     #[serde(default)]
@@ -95,9 +103,9 @@ pub struct BaSummary {
 /// point starts at the mean of the observations' back-projections from the current poses.
 pub fn tracks(map: &Map, camera: &Camera) -> Vec<Track> {
     let mut groups = match_groups(map);
-    groups.retain(|g| {
-        g.len() >= 2 && g.windows(2).all(|w| w[0].0 != w[1].0) // sorted by keyframe
-    });
+    // Groups are sorted by (keyframe, keypoint): a repeated keyframe is adjacent.
+    debug_assert!(groups.iter().all(|g| g.is_sorted()));
+    groups.retain(|g| g.len() >= 2 && g.windows(2).all(|w| w[0].0 != w[1].0));
     groups
         .into_iter()
         .map(|g| {
@@ -145,9 +153,13 @@ pub fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
         if c.a >= n_kf || c.b >= n_kf {
             continue;
         }
+        let (na, nb) = (
+            map.keyframes[c.a].track.features.len(),
+            map.keyframes[c.b].track.features.len(),
+        );
         for &(ia, ib) in &c.matches {
             let (x, y) = (offsets[c.a] + ia as usize, offsets[c.b] + ib as usize);
-            if x < total && y < total {
+            if (ia as usize) < na && (ib as usize) < nb {
                 let (rx, ry) = (find(&mut parent, x), find(&mut parent, y));
                 if rx != ry {
                     parent[rx.max(ry)] = rx.min(ry);
@@ -157,7 +169,8 @@ pub fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
     }
     let mut groups: BTreeMap<usize, Vec<(usize, usize)>> = BTreeMap::new();
     for (k, kf) in map.keyframes.iter().enumerate() {
-        for (i, p) in kf.track.points_cam.iter().enumerate() {
+        let n = kf.track.features.len();
+        for (i, p) in kf.track.points_cam.iter().take(n).enumerate() {
             if p.is_some() {
                 let root = find(&mut parent, offsets[k] + i);
                 groups.entry(root).or_default().push((k, i));
@@ -173,10 +186,6 @@ fn find(parent: &mut [usize], mut x: usize) -> usize {
         x = parent[x];
     }
     x
-}
-
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
 /// The geometry of one observation at the current estimate.
@@ -240,16 +249,6 @@ fn residual(pose: &Pose, point: &Point3<f64>, obs: &Observation, s: Scales) -> O
     })
 }
 
-/// Huber cost of a squared whitened residual and its IRLS weight.
-fn huber(delta: f64, r2: f64) -> (f64, f64) {
-    let r = r2.sqrt();
-    if r <= delta {
-        (r2, 1.0)
-    } else {
-        (2.0 * delta * r - delta * delta, delta / r)
-    }
-}
-
 /// What stays the same during one adjustment: which poses are free, the edges and the
 /// scales.
 struct Problem<'a> {
@@ -288,7 +287,7 @@ impl Problem<'_> {
         for t in tracks {
             for o in t.observations.iter().filter(|o| o.inlier) {
                 cost += match residual(&poses[o.keyframe], &t.point, o, self.scales) {
-                    Some(res) => huber(set.huber, res.r.norm_squared()).0,
+                    Some(res) => robust(RobustKernel::Huber, set.huber, res.r.norm_squared()).0,
                     None => set.outlier_chi2,
                 };
             }
@@ -364,7 +363,7 @@ impl Problem<'_> {
                 let Some(res) = residual(&poses[o.keyframe], &t.point, o, self.scales) else {
                     continue;
                 };
-                let (_, w) = huber(set.huber, res.r.norm_squared());
+                let (_, w) = robust(RobustKernel::Huber, set.huber, res.r.norm_squared());
                 hpp += res.j_point.transpose() * res.j_point * w;
                 gp -= res.j_point.transpose() * res.r * w;
                 let i = slot[o.keyframe];
@@ -450,8 +449,19 @@ pub fn adjust(
     camera: &Camera,
     settings: &BaSettings,
 ) -> BaSummary {
+    // Observations and edges naming a pose that is not there take no part.
+    let n = poses.len();
+    for o in tracks.iter_mut().flat_map(|t| t.observations.iter_mut()) {
+        o.inlier &= o.keyframe < n;
+    }
+    let edges: Vec<Edge> = edges
+        .iter()
+        .filter(|e| e.i < n && e.j < n)
+        .cloned()
+        .collect();
+    let edges = edges.as_slice();
     let mut fixed = fixed.to_vec();
-    fixed.resize(poses.len(), true);
+    fixed.resize(n, true);
     if !fixed.iter().any(|&f| f) && !fixed.is_empty() {
         fixed[0] = true;
     }
@@ -600,7 +610,7 @@ pub fn refine_frames(
     if !b.refine_frames {
         return 0;
     }
-    let mut adjusted: HashMap<(usize, usize), Point3<f64>> = HashMap::new();
+    let mut adjusted: BTreeMap<(usize, usize), Point3<f64>> = BTreeMap::new();
     for t in tracks {
         for o in t.observations.iter().filter(|o| o.inlier) {
             adjusted.insert((o.keyframe, o.keypoint), t.point);
@@ -615,10 +625,12 @@ pub fn refine_frames(
     let (min_depth, max_depth) = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let mut refined = 0;
     for f in frames.iter_mut() {
-        let Some(kf) = f.reference.and_then(|k| map.keyframes.get(k)) else {
+        let Some((k, kf)) = f
+            .reference
+            .and_then(|k| map.keyframes.get(k).map(|kf| (k, kf)))
+        else {
             continue;
         };
-        let Some(k) = f.reference else { continue };
         let points: Vec<(Point3<f64>, Observation)> = f
             .observations
             .iter()
@@ -669,7 +681,7 @@ fn refine_pose(
         points
             .iter()
             .map(|(p, o)| match residual(pose, p, o, s) {
-                Some(r) => huber(b.huber, r.r.norm_squared()).0,
+                Some(r) => robust(RobustKernel::Huber, b.huber, r.r.norm_squared()).0,
                 None => b.outlier_chi2,
             })
             .sum()
@@ -689,7 +701,7 @@ fn refine_pose(
             let mut g = Vector6::zeros();
             for (p, o) in &points {
                 if let Some(r) = residual(&pose, p, o, s) {
-                    let (_, w) = huber(b.huber, r.r.norm_squared());
+                    let (_, w) = robust(RobustKernel::Huber, b.huber, r.r.norm_squared());
                     h += r.j_pose.transpose() * r.j_pose * w;
                     g -= r.j_pose.transpose() * r.r * w;
                 }

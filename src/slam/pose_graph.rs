@@ -16,7 +16,8 @@ use nalgebra::{
 };
 use std::collections::BTreeMap;
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+/// The cross-product matrix `[v]×`.
+pub(super) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
@@ -119,7 +120,7 @@ pub struct LmSummary {
 }
 
 /// Robust cost of a squared whitened error and its IRLS weight.
-fn robust(kernel: RobustKernel, delta: f64, r2: f64) -> (f64, f64) {
+pub(super) fn robust(kernel: RobustKernel, delta: f64, r2: f64) -> (f64, f64) {
     match kernel {
         RobustKernel::None => (r2, 1.0),
         RobustKernel::Huber => {

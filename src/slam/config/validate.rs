@@ -286,11 +286,12 @@ impl SlamConfig {
 
 impl SlamConfig {
     /// Bundle adjustment: bounded iterations and keyframes (the reduced system is dense,
-    /// 6 rows per free keyframe), positive scales, non-negative depth weights.
+    /// 6 rows per free keyframe: 300 is a 1800x1800 Cholesky per iteration), positive
+    /// scales, non-negative depth weights.
     fn validate_bundle_adjustment(&self) -> std::result::Result<(), String> {
         let b = &self.bundle_adjustment;
         count(b.iterations, 1, 200, "bundle_adjustment.iterations")?;
-        count(b.max_keyframes, 1, 1000, "bundle_adjustment.max_keyframes")?;
+        count(b.max_keyframes, 1, 300, "bundle_adjustment.max_keyframes")?;
         pos(b.sigma_px, "bundle_adjustment.sigma_px")?;
         pos(b.huber, "bundle_adjustment.huber")?;
         pos(b.outlier_chi2, "bundle_adjustment.outlier_chi2")?;

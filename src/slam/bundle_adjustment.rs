@@ -465,7 +465,7 @@ pub fn adjust(
     if !fixed.iter().any(|&f| f) && !fixed.is_empty() {
         fixed[0] = true;
     }
-    let mut slot = vec![usize::MAX; poses.len()];
+    let mut slot = vec![usize::MAX; n];
     let mut free = 0;
     for (k, f) in fixed.iter().enumerate() {
         if !f {
@@ -486,7 +486,7 @@ pub fn adjust(
         settings,
     };
     let mut summary = BaSummary {
-        keyframes: poses.len(),
+        keyframes: n,
         free_keyframes: free,
         tracks: tracks.len(),
         observations: tracks.iter().map(|t| t.observations.len()).sum(),
@@ -578,7 +578,7 @@ pub fn adjust_map(
     let mut poses: Vec<Pose> = map.keyframes.iter().map(|k| k.pose).collect();
     let edges: Vec<Edge> = edges
         .iter()
-        .filter(|e| e.i < n && e.j < n && cfg.edge_weight > 0.0)
+        .filter(|_| cfg.edge_weight > 0.0)
         .map(|e| Edge {
             information: e.information * cfg.edge_weight,
             ..e.clone()

@@ -294,9 +294,23 @@ impl Tracker {
         if let Some(refined) = self.refine_dense(&input, reference_now, &pose) {
             pose = refined;
         }
-        let ref_inliers = (0..corr.world.len())
+        // The PnP inliers against the reference keyframe: they decide on a new keyframe
+        // and, kept in the frame's record, refine it after bundle adjustment.
+        let observations: Vec<FrameObservation> = (0..corr.world.len())
             .filter(|&k| result.inliers[k] && corr.from_reference[k])
-            .count();
+            .map(|k| {
+                let pixel = input.features.points[corr.current[k]];
+                FrameObservation {
+                    keypoint: corr.source[k] as u32,
+                    pixel,
+                    depth: input
+                        .depth
+                        .filter(|_| !self.monocular)
+                        .and_then(|d| d.at(pixel[0] as f64, pixel[1] as f64)),
+                }
+            })
+            .collect();
+        let ref_inliers = observations.len();
         let inliers = result.n_inliers;
         // The frame's own 3D points: sensor depth, or the inliers' map points.
         let world: Vec<Option<Point3<f64>>> = if self.monocular {
@@ -336,20 +350,6 @@ impl Tracker {
             out.record.correspondences = corr.world.len();
             return out;
         }
-        let observations = (0..corr.world.len())
-            .filter(|&k| result.inliers[k] && corr.from_reference[k])
-            .map(|k| {
-                let pixel = input.features.points[corr.current[k]];
-                FrameObservation {
-                    keypoint: corr.source[k] as u32,
-                    pixel,
-                    depth: input
-                        .depth
-                        .filter(|_| !self.monocular)
-                        .and_then(|d| d.at(pixel[0] as f64, pixel[1] as f64)),
-                }
-            })
-            .collect();
         let record = FrameRecord {
             index: input.index,
             stamp: input.stamp,

@@ -37,20 +37,22 @@ use burn::prelude::*;
 use burn::tensor::ops::{ConvOptions, PadMode};
 
 use super::backend::is_cpu;
+use super::depthwise_kernel;
 
 /// Which implementation [`conv2d`] and [`crate::nn::max_pool2d`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OpImpl {
     /// Per op and device, whichever measured faster (`examples/conv_speed.rs`, 2-core VM):
     ///
-    /// * ndarray with autodiff (training): always the composite ops — Burn's convolution
-    ///   backward there is 10–600× slower.
+    /// * ndarray with autodiff (training): the composite ops — Burn's convolution backward
+    ///   there is 10–600× slower — except depthwise convolutions (below).
     /// * ndarray without autodiff (inference): the composite ops except 3×3 depthwise
     ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
     /// * flex: only 1×1 stride-1 convolutions (a plain matrix product, 3–5× faster forward +
     ///   backward on flex too) and, without autodiff, the max pool (2×).
     /// * stride-1 max pools with autodiff on either CPU backend: [`crate::nn::pool_kernel`]
-    ///   ([`pool_path`]).
+    ///   ([`pool_path`]); depthwise convolutions with autodiff on either CPU backend:
+    ///   [`crate::nn::depthwise_kernel`] ([`depthwise_uses_kernel`]).
     /// * the GPU backends (wgpu, cuda): 1×1 convolutions as matrix products too, Burn's own
     ///   kernels otherwise. Burn 0.22.1's wgpu 1×1 convolution returns a tensor that later
     ///   in-place element-wise ops read wrongly (SDFCNN's one-channel depth head gave an L1
@@ -162,19 +164,31 @@ pub fn pool_path(device: &Device) -> PoolPath {
 /// `layer.forward(x)`, computed by [`conv2d_matmul`] where that is faster than the backend's
 /// kernel (see [`OpImpl`]), by Burn otherwise. Same parameters, same result, same gradients.
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
-    if !conv_uses_composite(&x.device(), ConvKind::of(layer)) {
+    let device = x.device();
+    let kind = ConvKind::of(layer);
+    let kernel = kind == ConvKind::Depthwise && depthwise_uses_kernel(&device);
+    if !kernel && !conv_uses_composite(&device, kind) {
         return layer.forward(x);
     }
-    let [_, _, h, w] = x.dims();
+    let [_, c, h, w] = x.dims();
     let padding = padding_pairs(&layer.padding, [h, w], layer.kernel_size, layer.stride);
     let options =
         ConvOptions::new_with_padding(layer.stride, padding, layer.dilation, layer.groups);
-    conv2d_matmul(
-        x,
-        layer.weight.val(),
-        layer.bias.as_ref().map(|b| b.val()),
-        options,
-    )
+    let (weight, bias) = (layer.weight.val(), layer.bias.as_ref().map(|b| b.val()));
+    if kernel && depthwise_kernel::supports(c, [h, w], weight.dims(), &options) {
+        return depthwise_kernel::depthwise_conv2d(x, weight, bias, options);
+    }
+    if !conv_uses_composite(&device, kind) {
+        return layer.forward(x);
+    }
+    conv2d_matmul(x, weight, bias, options)
+}
+
+/// Whether [`conv2d`] runs depthwise convolutions (dilation 1) through
+/// [`crate::nn::depthwise_kernel`]: on the CPU backends with autodiff (training) under
+/// [`OpImpl::Auto`].
+pub fn depthwise_uses_kernel(device: &Device) -> bool {
+    op_impl() == OpImpl::Auto && is_cpu(device) && device.is_autodiff()
 }
 
 /// `((top, bottom), (left, right))` padding of `config` for an `[h, w]` input, as
@@ -520,7 +534,16 @@ mod tests {
     }
 
     fn check_backend(device: &Device) {
-        for (k, c) in CASES.iter().enumerate() {
+        check_cases(device, &CASES, conv2d_matmul);
+    }
+
+    /// `conv` against Burn's `conv2d` on `device`: output and gradients of every case.
+    fn check_cases(
+        device: &Device,
+        cases: &[Case],
+        conv: fn(Tensor<4>, Tensor<4>, Option<Tensor<1>>, ConvOptions<2>) -> Tensor<4>,
+    ) {
+        for (k, c) in cases.iter().enumerate() {
             let reference = Device::flex();
             let [n, _, h, w] = c.x;
             let [(t, b), (l, r)] = c.padding;
@@ -534,7 +557,7 @@ mod tests {
                 random([n, c.w[0], oh, ow], &reference),
             );
             let want = run(c, &reference, &data, burn_conv2d);
-            let got = run(c, device, &data, conv2d_matmul);
+            let got = run(c, device, &data, conv);
             for (what, (g, e)) in ["output", "d input", "d weight", "d bias"]
                 .iter()
                 .zip(got.iter().zip(&want))
@@ -552,6 +575,38 @@ mod tests {
     #[test]
     fn matches_burn_conv_on_flex() {
         check_backend(&Device::flex());
+    }
+
+    #[test]
+    fn depthwise_kernel_matches_burn_conv_on_both_backends() {
+        let cases = [
+            case([2, 6, 7, 9], [6, 1, 3, 3], 1, 1, 6, false), // MobileNetV2 3×3 s1
+            case([2, 6, 7, 9], [6, 1, 3, 3], 2, 1, 6, true),  // 3×3 s2, odd sizes
+            case([2, 5, 8, 10], [5, 1, 3, 3], 2, 1, 5, false), // 3×3 s2, even sizes
+            case([1, 3, 2, 2], [3, 1, 3, 3], 1, 1, 3, false), // smaller than the kernel's reach
+            case([2, 4, 6, 5], [4, 1, 5, 5], 1, 2, 4, false), // 5×5
+            case([2, 4, 6, 7], [4, 1, 3, 3], 1, 0, 4, true),  // no padding
+            Case {
+                x: [1, 4, 6, 7],
+                w: [4, 1, 4, 4],
+                stride: 2,
+                padding: [(1, 2), (2, 1)],
+                dilation: 1,
+                groups: 4,
+                bias: true,
+            },
+        ];
+        for device in [ndarray(), Device::flex()] {
+            check_cases(&device, &cases, depthwise_kernel::depthwise_conv2d);
+            // Without autodiff too.
+            let c = &cases[1];
+            let x = random(c.x, &device);
+            let w = random(c.w, &device);
+            let options = ConvOptions::new_with_padding([2, 2], c.padding, [1, 1], c.groups);
+            let want = values(burn_conv2d(x.clone(), w.clone(), None, options.clone()));
+            let got = values(depthwise_kernel::depthwise_conv2d(x, w, None, options));
+            assert_close("plain", &got, &want);
+        }
     }
 
     #[test]
@@ -599,5 +654,9 @@ mod tests {
         assert_eq!(pool_path(&d.clone().autodiff()), PoolPath::Kernel);
         assert_eq!(pool_path(&Device::flex()), PoolPath::Shifted);
         assert_eq!(pool_path(&Device::flex().autodiff()), PoolPath::Kernel);
+        let kernel = [d.clone(), Device::flex()].map(|d| depthwise_uses_kernel(&d));
+        assert_eq!(kernel, [false, false]);
+        let kernel = [d.autodiff(), Device::flex().autodiff()].map(|d| depthwise_uses_kernel(&d));
+        assert_eq!(kernel, [true, true]);
     }
 }

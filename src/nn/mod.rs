@@ -5,6 +5,7 @@
 pub mod activation;
 pub mod backend;
 pub mod conv;
+pub mod depthwise_kernel;
 pub mod init;
 pub mod nhwc;
 pub mod packed_conv;

@@ -368,6 +368,9 @@ fn dense(
         return dense(x, weight, [oh, ow], [1, 1], [1, 1]);
     }
     let [n, c, _, _] = x.dims();
+    if stride == [1, 1] && oc < c {
+        return dense_output_taps(x, weight, [oh, ow], dilation);
+    }
     let taps: Vec<Tensor<4>> = (0..kh)
         .flat_map(|i| (0..kw).map(move |j| [i, j]))
         .map(|ij| tap(&x, ij, [oh, ow], stride, dilation))
@@ -381,6 +384,38 @@ fn dense(
     // Column order (i, j, c) to match the taps' concatenation.
     let weight = weight.permute([0, 2, 3, 1]).reshape([1, oc, kh * kw * c]);
     weight.matmul(cols).reshape([n, oc, oh, ow])
+}
+
+/// Dense stride-1 convolution of the padded `x` with fewer output than input channels
+/// (SDFCNN's depth head, 3×3 256→1): one matrix product gives every tap's contribution at every
+/// padded pixel, `[N, KH·KW·OC, H, W]`, and the output sums those maps shifted by their tap.
+/// im2col would build `[N, KH·KW·C, OH·OW]` (177 MB for the depth head at batch 4, 240×320).
+fn dense_output_taps(
+    x: Tensor<4>,
+    weight: Tensor<4>,
+    [oh, ow]: [usize; 2],
+    dilation: [usize; 2],
+) -> Tensor<4> {
+    let [n, c, h, w] = x.dims();
+    let [oc, _, kh, kw] = weight.dims();
+    // Rows in (i, j, o) order.
+    let weight = weight.permute([2, 3, 0, 1]).reshape([1, kh * kw * oc, c]);
+    let z = weight
+        .matmul(x.reshape([n, c, h * w]))
+        .reshape([n, kh * kw * oc, h, w]);
+    let mut acc: Option<Tensor<4>> = None;
+    for i in 0..kh {
+        for j in 0..kw {
+            let t = i * kw + j;
+            let zt = z.clone().slice(s![.., t * oc..(t + 1) * oc]);
+            let term = tap(&zt, [i, j], [oh, ow], [1, 1], dilation);
+            acc = Some(match acc {
+                Some(a) => a + term,
+                None => term,
+            });
+        }
+    }
+    acc.expect("kernel has at least one tap")
 }
 
 /// Rewrites a stride-`s` convolution as a stride-1 one: the padded input `[N, C, H, W]`
@@ -472,7 +507,7 @@ mod tests {
         }
     }
 
-    const CASES: [Case; 12] = [
+    const CASES: [Case; 14] = [
         case([2, 3, 9, 11], [5, 3, 4, 4], 2, 1, 1, true), // FPFDCNN 4×4 s2 p1, odd sizes
         case([2, 3, 8, 12], [4, 3, 4, 4], 2, 1, 1, true), // 4×4 s2 p1, even sizes
         case([2, 4, 7, 9], [6, 4, 3, 3], 1, 1, 1, true),  // 3×3 s1 p1
@@ -483,6 +518,16 @@ mod tests {
         case([2, 4, 5, 6], [4, 1, 1, 1], 1, 0, 4, false), // depthwise 1×1
         case([2, 4, 7, 8], [6, 2, 3, 3], 1, 1, 2, true),  // grouped 3×3
         case([2, 4, 7, 8], [6, 4, 1, 1], 2, 1, 1, true),  // 1×1 s2 p1 (general path)
+        case([2, 6, 7, 9], [1, 6, 3, 3], 1, 1, 1, true),  // SDFCNN depth1: fewer outputs
+        Case {
+            x: [2, 5, 8, 9],
+            w: [2, 5, 3, 3],
+            stride: 1,
+            padding: [(1, 2), (2, 1)],
+            dilation: 2,
+            groups: 1,
+            bias: false,
+        },
         // Asymmetric padding (what `Same` gives an even kernel), dilation 2.
         Case {
             x: [2, 3, 8, 9],

@@ -4,6 +4,7 @@
 
 pub mod activation;
 pub mod backend;
+pub mod batch_norm_kernel;
 pub mod conv;
 pub mod depthwise_kernel;
 pub mod init;
@@ -20,6 +21,7 @@ pub mod trace;
 pub mod weights;
 
 pub use activation::elu;
+pub use batch_norm_kernel::batch_norm;
 pub use conv::{OpImpl, conv2d, conv2d_matmul, set_op_impl};
 pub use init::seeded_init;
 pub use params::trainable_params;

@@ -7,7 +7,7 @@ use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::nn::{BatchNorm, BatchNormConfig, PaddingConfig2d};
 use burn::prelude::*;
 
-use crate::nn::{ShapeTrace, conv2d, max_pool2d};
+use crate::nn::{ShapeTrace, batch_norm, conv2d, max_pool2d};
 
 /// Bias-free convolution with `padding = kernel / 2` (Table 13's 0 for 1×1, 1 for 3×3).
 pub(crate) fn conv(
@@ -63,7 +63,7 @@ impl ConvBn {
 
     /// Applies conv, BN and the activation.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let x = self.bn.forward(conv2d(&self.conv, x));
+        let x = batch_norm(&self.bn, conv2d(&self.conv, x));
         if self.relu6 { relu6(x) } else { x }
     }
 
@@ -82,7 +82,7 @@ impl ConvBn {
             batch_mean: to_vec(batch_mean),
             running_mean: to_vec(self.bn.running_mean.value()),
         });
-        let y = self.bn.forward(y);
+        let y = batch_norm(&self.bn, y);
         if self.relu6 { relu6(y) } else { y }
     }
 

@@ -13,8 +13,8 @@
 //!
 //! Poses are camera-to-world and perturbed on the right, `T ← T exp(δ)` as in
 //! [`super::pose_graph`]; the normal equations are reduced to the poses by the Schur
-//! complement over the points (3x3 blocks) and solved densely by Cholesky with
-//! Levenberg-Marquardt damping. No crate in reach fitted: the sparse solver crates
+//! complement over the points (3x3 blocks) and solved densely by Cholesky
+//! ([`super::cholesky`]) with Levenberg-Marquardt damping. No crate in reach fitted: the sparse solver crates
 //! (`factrs`, `tiny-solver`, `apex-solver`) are not available offline here, and the problem
 //! is small (tens of poses, thousands of points).
 
@@ -410,7 +410,7 @@ impl Problem<'_> {
             }
         }
         let dx = if dim > 0 {
-            h.cholesky()?.solve(&g)
+            super::cholesky::solve_spd(h, &g)?
         } else {
             DVector::zeros(0)
         };

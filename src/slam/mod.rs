@@ -17,6 +17,7 @@
 //!   ([`crate::bundled`]).
 
 pub mod bundle_adjustment;
+pub mod cholesky;
 pub mod config;
 pub mod correction;
 pub mod depth_alignment;

@@ -95,7 +95,7 @@ pub struct LmSettings {
     pub kernel: RobustKernel,
     /// Kernel scale on the whitened error norm.
     pub delta: f64,
-    /// Dense Cholesky up to this many variables, block-Jacobi preconditioned
+    /// Dense Cholesky ([`super::cholesky`]) up to this many variables, block-Jacobi preconditioned
     /// conjugate gradients above.
     pub dense_limit: usize,
 }
@@ -268,7 +268,7 @@ impl Normal {
                 h.view_mut((6 * b, 6 * a), (6, 6)).copy_from(&m.transpose());
             }
             let g = DVector::from_iterator(dim, self.g.iter().flat_map(|v| v.iter().map(|x| -x)));
-            let x = h.cholesky()?.solve(&g);
+            let x = super::cholesky::solve_spd(h, &g)?;
             Some(
                 (0..self.n)
                     .map(|k| Vector6::from_fn(|r, _| x[6 * k + r]))

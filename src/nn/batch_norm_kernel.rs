@@ -17,7 +17,7 @@
 
 use super::backend::is_cpu;
 use super::conv::{OpImpl, op_impl};
-use super::nhwc::simd_fn;
+use super::nhwc::{simd_fn, sum_lanes};
 use super::pool_kernel::{tensor, values};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
@@ -174,24 +174,25 @@ pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
 }
 
 simd_fn! {
-    /// `(Σ v, Σ (v − mean)²)` of one plane in sixteen running sums.
-    fn plane_sums(v: &[f32], mean: f32, out: &mut [f64; 2]) {
+    /// `Σ v` of one plane.
+    fn plane_sum(v: &[f32], out: &mut f64) {
+        *out = f64::from(sum_lanes(v));
+    }
+}
+
+simd_fn! {
+    /// `Σ (v − mean)²` of one plane in sixteen running sums.
+    fn centred_squares(v: &[f32], mean: f32, out: &mut f64) {
         const LANES: usize = 16;
-        let (mut s, mut q) = ([0.0f32; LANES], [0.0f32; LANES]);
+        let mut q = [0.0f32; LANES];
         let chunks = v.chunks_exact(LANES);
-        let (mut ts, mut tq) = (0.0f32, 0.0f32);
-        for &x in chunks.remainder() {
-            ts += x;
-            tq += (x - mean) * (x - mean);
-        }
+        let tail: f32 = chunks.remainder().iter().map(|&x| (x - mean) * (x - mean)).sum();
         for c in chunks {
             for i in 0..LANES {
-                s[i] += c[i];
                 q[i] += (c[i] - mean) * (c[i] - mean);
             }
         }
-        out[0] = f64::from(s.iter().sum::<f32>() + ts);
-        out[1] = f64::from(q.iter().sum::<f32>() + tq);
+        *out = f64::from(q.iter().sum::<f32>() + tail);
     }
 }
 
@@ -268,18 +269,19 @@ fn forward<B: Backend>(
     let (n, c, plane) = layout(&shape);
     let count = (n * plane).max(1) as f64;
     // The mean first, then the centred squares around it (as Burn's two means).
+    let plane_of = |p: usize| &v[p * plane..(p + 1) * plane];
     let sums = per_channel(n, c, |p| {
         let mut s = [0.0; 2];
-        plane_sums(&v[p * plane..(p + 1) * plane], 0.0, &mut s);
+        plane_sum(plane_of(p), &mut s[0]);
         s
     });
     let mean: Vec<f32> = sums.iter().map(|s| (s[0] / count) as f32).collect();
     let sums = per_channel(n, c, |p| {
         let mut s = [0.0; 2];
-        plane_sums(&v[p * plane..(p + 1) * plane], mean[p % c], &mut s);
+        centred_squares(plane_of(p), mean[p % c], &mut s[0]);
         s
     });
-    let var: Vec<f32> = sums.iter().map(|s| (s[1] / count) as f32).collect();
+    let var: Vec<f32> = sums.iter().map(|s| (s[0] / count) as f32).collect();
     if plane > 0 {
         v.par_chunks_mut(plane).enumerate().for_each(|(p, v)| {
             let ch = p % c;

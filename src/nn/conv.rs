@@ -167,7 +167,8 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let device = x.device();
     let kind = ConvKind::of(layer);
     let kernel = kind == ConvKind::Depthwise && depthwise_uses_kernel(&device);
-    if !kernel && !conv_uses_composite(&device, kind) {
+    let composite = conv_uses_composite(&device, kind);
+    if !kernel && !composite {
         return layer.forward(x);
     }
     let [_, c, h, w] = x.dims();
@@ -178,7 +179,7 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     if kernel && depthwise_kernel::supports(c, [h, w], weight.dims(), &options) {
         return depthwise_kernel::depthwise_conv2d(x, weight, bias, options);
     }
-    if !conv_uses_composite(&device, kind) {
+    if !composite {
         return layer.forward(x);
     }
     conv2d_matmul(x, weight, bias, options)
@@ -221,7 +222,7 @@ fn same_padding(kernel: usize, stride: usize, size: usize) -> (usize, usize) {
 }
 
 /// Output size of one axis.
-fn out_size(
+pub(super) fn out_size(
     size: usize,
     (before, after): (usize, usize),
     kernel: usize,
@@ -293,8 +294,16 @@ pub fn conv2d_matmul(
         }
     };
     debug_assert_eq!(out.dims(), [n, oc, oh, ow]);
+    add_bias(out, bias)
+}
+
+/// `out` (`[N, OC, OH, OW]`) plus the per-channel `bias` (`[OC]`), if any.
+pub(super) fn add_bias(out: Tensor<4>, bias: Option<Tensor<1>>) -> Tensor<4> {
     match bias {
-        Some(b) => out + b.reshape([1, oc, 1, 1]),
+        Some(b) => {
+            let [oc] = b.dims();
+            out + b.reshape([1, oc, 1, 1])
+        }
         None => out,
     }
 }

@@ -15,7 +15,8 @@
 // burn-ndarray is deprecated upstream but is this crate's default backend.
 #![allow(deprecated)]
 
-use super::nhwc::simd_fn;
+use super::conv::{add_bias, out_size};
+use super::nhwc::{dot_lanes, simd_fn};
 use super::pool_kernel::{tensor, values};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
@@ -163,10 +164,7 @@ pub fn depthwise_conv2d(
         weight.into_dispatch(),
         options,
     ));
-    match bias {
-        Some(b) => out + b.reshape([1, c, 1, 1]),
-        None => out,
-    }
+    add_bias(out, bias)
 }
 
 /// Sizes of one convolution, in elements.
@@ -186,17 +184,17 @@ struct Geometry {
 impl Geometry {
     fn new(x: &[usize], weight: &[usize], o: &DepthwiseOptions) -> Self {
         let (h, w, kh, kw) = (x[2], x[3], weight[2], weight[3]);
-        let [(t, b), (l, r)] = o.padding;
+        let [pad_h, pad_w] = o.padding;
         let [sh, sw] = o.stride;
         Self {
             h,
             w,
-            oh: (h + t + b - kh) / sh + 1,
-            ow: (w + l + r - kw) / sw + 1,
+            oh: out_size(h, pad_h, kh, sh, 1),
+            ow: out_size(w, pad_w, kw, sw, 1),
             kh,
             kw,
             stride: o.stride,
-            pad: [t, l],
+            pad: [pad_h.0, pad_w.0],
         }
     }
 
@@ -306,26 +304,6 @@ simd_fn! {
             }
         }
     }
-}
-
-/// `Σ a[i]·b[i]` in sixteen running sums (a strict left-to-right sum would not vectorise).
-#[inline(always)]
-fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
-    const LANES: usize = 16;
-    let mut acc = [0.0f32; LANES];
-    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..LANES {
-            acc[i] += x[i] * y[i];
-        }
-    }
-    acc.iter().sum::<f32>() + tail
 }
 
 /// The convolution (no bias).

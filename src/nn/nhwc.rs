@@ -112,6 +112,43 @@ macro_rules! simd_fn {
 }
 pub(crate) use simd_fn;
 
+/// Running sums kept per lane by [`sum_lanes`] and [`dot_lanes`]: a strict left-to-right `f32`
+/// sum would not vectorise.
+const LANES: usize = 16;
+
+/// `Σ v[i]` in [`LANES`] running sums (inline it into a [`simd_fn`] body).
+#[inline(always)]
+pub(crate) fn sum_lanes(v: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let chunks = v.chunks_exact(LANES);
+    let tail: f32 = chunks.remainder().iter().sum();
+    for c in chunks {
+        for i in 0..LANES {
+            acc[i] += c[i];
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
+/// `Σ a[i]·b[i]` in [`LANES`] running sums (inline it into a [`simd_fn`] body).
+#[inline(always)]
+pub(crate) fn dot_lanes(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for i in 0..LANES {
+            acc[i] += x[i] * y[i];
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
 simd_fn! {
     /// Applies `act` in place (the exponential is [`exp`]'s polynomial, which vectorises).
     pub fn activate(v: &mut [f32], act: Activation) {

@@ -222,6 +222,34 @@ pub struct FpDataset {
     pub homography: HomographyConfig,
 }
 
+/// A batch in host memory, as [`FpDataset::load`] makes it (on the training loader's
+/// thread); [`FpHostBatch::to_device`] makes it an [`FpBatch`].
+pub struct FpHostBatch {
+    /// `[N, 1, H, W]` images A and B.
+    images: [Vec<f32>; 2],
+    /// `[N, 1, H, W]` detector targets of A and B (1 at a target pixel).
+    targets: [Vec<f32>; 2],
+    shape: [usize; 4],
+    matches: Vec<Vec<FpMatch>>,
+}
+
+impl FpHostBatch {
+    /// The batch as tensors on `device`.
+    pub fn to_device(self, device: &Device) -> FpBatch {
+        let shape = self.shape;
+        let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, shape), device);
+        let [ia, ib] = self.images;
+        let [ta, tb] = self.targets;
+        FpBatch {
+            image_a: t(ia),
+            image_b: t(ib),
+            target_a: t(ta),
+            target_b: t(tb),
+            matches: self.matches,
+        }
+    }
+}
+
 /// A batch ready for the network.
 pub struct FpBatch {
     pub image_a: Tensor<4>,
@@ -310,6 +338,17 @@ impl FpDataset {
         rng: &mut impl rand::Rng,
         device: &Device,
     ) -> Result<FpBatch> {
+        Ok(self.load(ids, augment, max_matches, rng)?.to_device(device))
+    }
+
+    /// [`FpDataset::batch`] in host memory (no device work).
+    pub fn load(
+        &self,
+        ids: &[usize],
+        augment: Option<&PhotometricAugment>,
+        max_matches: usize,
+        rng: &mut impl rand::Rng,
+    ) -> Result<FpHostBatch> {
         let (h, w) = (self.height, self.width);
         let n = ids.len();
         let mut img = [vec![0.0f32; n * h * w], vec![0.0f32; n * h * w]];
@@ -336,14 +375,10 @@ impl FpDataset {
             m.truncate(max_matches);
             matches.push(m);
         }
-        let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, [n, 1, h, w]), device);
-        let [ia, ib] = img;
-        let [ta, tb] = tgt;
-        Ok(FpBatch {
-            image_a: t(ia),
-            image_b: t(ib),
-            target_a: t(ta),
-            target_b: t(tb),
+        Ok(FpHostBatch {
+            images: img,
+            targets: tgt,
+            shape: [n, 1, h, w],
             matches,
         })
     }

@@ -6,7 +6,7 @@
 //! is [`crate::training::fit`]'s, shared with SDFCNN.
 
 pub use super::config::FpfdcnnTrainConfig;
-use super::data::{FpBatch, FpDataset};
+use super::data::{FpBatch, FpDataset, FpHostBatch};
 use super::loss::{descriptor_infonce, detector_bce, detector_cell_ce, sample_descriptors};
 use super::model::Fpfdcnn;
 use crate::error::{Error, Result};
@@ -173,15 +173,17 @@ impl Learner for FpLearner<'_> {
         self.cfg.data.pairs_per_epoch
     }
 
-    fn train_step(&self, model: &Fpfdcnn, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Step> {
+    type Batch = FpHostBatch;
+
+    fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<FpHostBatch> {
         let cfg = self.cfg;
-        let batch = self.train.batch(
-            ids,
-            Some(&cfg.data.augment),
-            cfg.loss.max_matches,
-            rng,
-            self.device,
-        )?;
+        let augment = Some(&cfg.data.augment);
+        self.train.load(ids, augment, cfg.loss.max_matches, rng)
+    }
+
+    fn train_step(&self, model: &Fpfdcnn, batch: FpHostBatch) -> Result<Step> {
+        let cfg = self.cfg;
+        let batch = batch.to_device(self.device);
         let l = batch_loss(model, batch, cfg)?;
         Ok(Step {
             terms: l.terms(),

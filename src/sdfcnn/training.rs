@@ -41,7 +41,7 @@ use super::inference::load_weights;
 use super::loss::LossResolution;
 use super::validation::validate;
 use super::{Sdfcnn, SdfcnnOutput};
-use crate::dataset::augment::AugmentConfig;
+use crate::dataset::augment::{AugmentConfig, SegDepthSample};
 use crate::error::{Error, Result};
 use crate::nn::seeded_init;
 use crate::training::fit::{Fit, Learner, Plot, Step, fit};
@@ -143,11 +143,16 @@ impl Learner for SdfLearner<'_> {
         self.train.len()
     }
 
-    fn train_step(&self, model: &Sdfcnn, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Step> {
+    type Batch = Vec<SegDepthSample>;
+
+    fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Vec<SegDepthSample>> {
+        let data = &self.cfg.data;
+        self.train.load_batch(ids, data.size, &data.augment, rng)
+    }
+
+    fn train_step(&self, model: &Sdfcnn, samples: Vec<SegDepthSample>) -> Result<Step> {
         let cfg = self.cfg;
-        let samples = self
-            .train
-            .load_batch(ids, cfg.data.size, &cfg.data.augment, rng)?;
+        let n = samples.len();
         let batch = SdfcnnBatch::from_samples(&samples, self.device)?;
         let out = forward(model, batch.images, cfg.loss.resolution)?;
         let loss = cfg.loss.forward(out, batch.labels, batch.depth);
@@ -157,7 +162,7 @@ impl Learner for SdfLearner<'_> {
                 ("depth_loss", scalar(&loss.depth)),
             ],
             loss: loss.total,
-            samples: ids.len(),
+            samples: n,
         })
     }
 

@@ -9,7 +9,11 @@
 //!   gradients is skipped, ten in a row stop the run; an epoch whose weights or metrics are
 //!   not finite is not saved ([`check_finite_epoch`]); every stop names the checkpoint kept;
 //! - per epoch: `metrics.csv` and the network's plots, then an atomic checkpoint
-//!   (`model.bpk`, `optimizer.bpk`, `state.json`, the run's config).
+//!   (`model.bpk`, `optimizer.bpk`, `state.json`, the run's config);
+//! - data loading overlapped with the steps: a loader thread reads and augments the next
+//!   [`PREFETCH`] batches ([`Learner::load`]) while the current one trains, as PyTorch's
+//!   `DataLoader` workers do; the epoch line says how long loading took and how long the
+//!   steps waited for it.
 
 use super::{
     EpochRecord, OptimizerConfig, RunDir, TrainState, batch_rng, check_finite, check_finite_epoch,
@@ -23,7 +27,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::time::Instant;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
 
 /// The loss of one training batch.
 pub struct Step {
@@ -64,8 +69,16 @@ pub trait Learner {
         0
     }
 
-    /// The loss of the training samples `ids`, augmented with `rng`.
-    fn train_step(&self, model: &Self::Model, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Step>;
+    /// One training batch as [`Learner::load`] leaves it: host memory, no device work, so
+    /// that a loader thread can make it while the previous batch trains.
+    type Batch: Send;
+
+    /// Reads and augments the training samples `ids`, drawing every random choice from
+    /// `rng` (seeded per batch, so the batch is the same whichever thread loads it).
+    fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Self::Batch>;
+
+    /// The loss of a loaded batch.
+    fn train_step(&self, model: &Self::Model, batch: Self::Batch) -> Result<Step>;
 
     /// Adds the validation metrics (`val_*`) of `model` (in validation mode) to `values`.
     fn validate(&self, model: &Self::Model, values: &mut BTreeMap<String, f64>) -> Result<()>;
@@ -142,7 +155,7 @@ impl Meter {
 }
 
 /// Trains `model` as `fit` says (see the module docs) and returns it after the last epoch.
-pub fn fit<L: Learner>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Model> {
+pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Model> {
     let mut optim = fit.optimizer.init();
     let (mut model, mut state) = (model, TrainState::default());
     if fit.resume {
@@ -151,8 +164,9 @@ pub fn fit<L: Learner>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Mod
     for epoch in state.epoch..fit.epochs {
         let started = Instant::now();
         let lr = fit.optimizer.lr_at(epoch);
-        let meter;
-        (model, meter) = train_epoch(learner, fit, model, &mut optim, epoch, lr, &mut state)?;
+        let (meter, loading);
+        (model, meter, loading) =
+            train_epoch(learner, fit, model, &mut optim, epoch, lr, &mut state)?;
         let mut values = BTreeMap::new();
         meter.record("train", &mut values);
         // `valid()` also folds the last batch-norm running-statistics update into the
@@ -181,7 +195,7 @@ pub fn fit<L: Learner>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Mod
         })?;
         write_history(learner, &fit.run.root, &state)?;
         println!(
-            "epoch {}/{} ({:.0} s, lr {lr}): {summary} -> {}",
+            "epoch {}/{} ({:.0} s, lr {lr}; {loading}): {summary} -> {}",
             epoch + 1,
             fit.epochs,
             started.elapsed().as_secs_f64(),
@@ -191,17 +205,41 @@ pub fn fit<L: Learner>(learner: &L, fit: &Fit, model: L::Model) -> Result<L::Mod
     Ok(model)
 }
 
-/// One epoch over the training samples in the seeded order: the updated model and the
-/// epoch's sums.
-fn train_epoch<L: Learner>(
+/// Batches the loader thread may have ready ahead of the step (each is one batch of
+/// decoded, augmented samples in host memory).
+pub const PREFETCH: usize = 2;
+
+/// How an epoch's data loading went: the loader thread's time, and how long the steps
+/// waited for it (the part loading added to the epoch).
+#[derive(Debug, Default, Clone, Copy)]
+pub struct Loading {
+    pub load: Duration,
+    pub wait: Duration,
+}
+
+impl std::fmt::Display for Loading {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "data {:.1} s, waited {:.1} s",
+            self.load.as_secs_f64(),
+            self.wait.as_secs_f64()
+        )
+    }
+}
+
+/// One epoch over the training samples in the seeded order: the updated model, the epoch's
+/// sums and its loading times. Batches are loaded on a scoped thread, at most [`PREFETCH`]
+/// ahead; an error on either side ends both.
+fn train_epoch<L: Learner + Sync>(
     learner: &L,
     fit: &Fit,
-    mut model: L::Model,
+    model: L::Model,
     optim: &mut ModuleOptimizer,
     epoch: usize,
     lr: f64,
     state: &mut TrainState,
-) -> Result<(L::Model, Meter)> {
+) -> Result<(L::Model, Meter, Loading)> {
     let mut order = epoch_order(learner.train_len(), fit.seed, epoch);
     if learner.samples_per_epoch() > 0 {
         order.truncate(learner.samples_per_epoch());
@@ -209,48 +247,74 @@ fn train_epoch<L: Learner>(
     let batches: Vec<&[usize]> = order.chunks(fit.batch_size.max(1)).collect();
     let bar = progress_bar(batches.len(), epoch, fit.epochs, fit.quiet);
     let mut meter = Meter::default();
+    let mut loading = Loading::default();
     let mut skipped = 0usize;
-    for (bi, ids) in batches.iter().enumerate() {
-        let mut rng = batch_rng(fit.seed, epoch, bi);
-        let step = learner.train_step(&model, ids, &mut rng)?;
-        let value = step.loss.clone().into_scalar::<f32>() as f64;
-        check_finite(value, epoch, bi, fit.run)?;
-        let grads = GradientsParams::from_grads(step.loss.backward(), &model);
-        let bad = non_finite_grads(&model, &grads);
-        bar.inc(1);
-        if !bad.is_empty() {
-            // A rare batch can give infinite gradients (a saturated sigmoid, a degenerate
-            // descriptor); skipping it keeps the weights finite.
-            skipped += 1;
-            bar.suspend(|| {
-                eprintln!(
-                    "epoch {} batch {bi}: non-finite gradients in {} parameter tensors (shapes \
-                     {:?}), step skipped",
-                    epoch + 1,
-                    bad.len(),
-                    &bad[..bad.len().min(3)]
-                )
-            });
-            if skipped >= 10 {
-                return Err(Error::msg(format!(
-                    "epoch {} batch {bi}: ten batches in a row had non-finite gradients: \
-                     training stopped; {}. Lower the learning rate or check the data.",
-                    epoch + 1,
-                    super::kept_checkpoint(fit.run)
-                )));
+    let model = std::thread::scope(|scope| -> Result<L::Model> {
+        let mut model = model;
+        let (tx, rx) = mpsc::sync_channel::<(Result<L::Batch>, Duration)>(PREFETCH);
+        let (seed, to_load) = (fit.seed, &batches);
+        scope.spawn(move || {
+            for (bi, ids) in to_load.iter().enumerate() {
+                let started = Instant::now();
+                let batch = learner.load(ids, &mut batch_rng(seed, epoch, bi));
+                let failed = batch.is_err();
+                // A closed channel means the step side stopped (an error): stop too.
+                if tx.send((batch, started.elapsed())).is_err() || failed {
+                    break;
+                }
             }
-            continue;
+        });
+        for bi in 0..batches.len() {
+            let waiting = Instant::now();
+            let (batch, load) = rx.recv().map_err(|_| {
+                Error::msg(format!(
+                    "epoch {} batch {bi}: the data loader thread stopped",
+                    epoch + 1
+                ))
+            })?;
+            loading.wait += waiting.elapsed();
+            loading.load += load;
+            let step = learner.train_step(&model, batch?)?;
+            let value = step.loss.clone().into_scalar::<f32>() as f64;
+            check_finite(value, epoch, bi, fit.run)?;
+            let grads = GradientsParams::from_grads(step.loss.backward(), &model);
+            let bad = non_finite_grads(&model, &grads);
+            bar.inc(1);
+            if !bad.is_empty() {
+                // A rare batch can give infinite gradients (a saturated sigmoid, a degenerate
+                // descriptor); skipping it keeps the weights finite.
+                skipped += 1;
+                bar.suspend(|| {
+                    eprintln!(
+                        "epoch {} batch {bi}: non-finite gradients in {} parameter tensors \
+                         (shapes {:?}), step skipped",
+                        epoch + 1,
+                        bad.len(),
+                        &bad[..bad.len().min(3)]
+                    )
+                });
+                if skipped >= 10 {
+                    return Err(Error::msg(format!(
+                        "epoch {} batch {bi}: ten batches in a row had non-finite gradients: \
+                         training stopped; {}. Lower the learning rate or check the data.",
+                        epoch + 1,
+                        super::kept_checkpoint(fit.run)
+                    )));
+                }
+                continue;
+            }
+            skipped = 0;
+            model = optim.step(lr, model, grads);
+            state.step += 1;
+            let mut terms = vec![("loss", value)];
+            terms.extend(step.terms);
+            meter.add(&terms, step.samples);
+            bar.set_message(meter.line());
         }
-        skipped = 0;
-        model = optim.step(lr, model, grads);
-        state.step += 1;
-        let mut terms = vec![("loss", value)];
-        terms.extend(step.terms);
-        meter.add(&terms, step.samples);
-        bar.set_message(meter.line());
-    }
+        Ok(model)
+    })?;
     bar.finish_and_clear();
-    Ok((model, meter))
+    Ok((model, meter, loading))
 }
 
 /// `--resume`: the model, optimizer state and training state of the run's last checkpoint;
@@ -313,6 +377,7 @@ fn progress_bar(len: usize, epoch: usize, epochs: usize, quiet: bool) -> Progres
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::training::OptimizerConfig;
 
     #[test]
     fn meter_weights_batches_by_samples() {
@@ -324,5 +389,114 @@ mod tests {
         assert_eq!(values["train_loss"], 2.0);
         assert_eq!(values["train_seg_loss"], 1.0);
         assert_eq!(m.line(), "loss 2.0000 seg_loss 1.0000");
+    }
+
+    /// A one-weight network that records the batches it trains on, in order, with the first
+    /// draw of each batch's generator; `fail_at` makes loading the batch holding that
+    /// sample an error.
+    struct Toy {
+        len: usize,
+        fail_at: Option<usize>,
+        seen: std::sync::Mutex<Vec<(Vec<usize>, u64)>>,
+    }
+
+    impl Learner for Toy {
+        type Model = burn::nn::Linear;
+        type Batch = (Vec<usize>, u64);
+
+        fn name(&self) -> &'static str {
+            "toy"
+        }
+
+        fn train_len(&self) -> usize {
+            self.len
+        }
+
+        fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Self::Batch> {
+            if let Some(bad) = self.fail_at.filter(|b| ids.contains(b)) {
+                return Err(Error::msg(format!("sample {bad} is unreadable")));
+            }
+            Ok((ids.to_vec(), rand::Rng::next_u64(rng)))
+        }
+
+        fn train_step(&self, model: &Self::Model, batch: Self::Batch) -> Result<Step> {
+            let (ids, _) = &batch;
+            let device = model.weight.val().device();
+            let x: Vec<f32> = ids.iter().map(|&i| i as f32 / 10.0).collect();
+            let x = Tensor::<2>::from_data(TensorData::new(x, [ids.len(), 1]), &device);
+            let loss = model.forward(x).powi_scalar(2).mean();
+            let samples = ids.len();
+            self.seen.lock().unwrap().push(batch);
+            Ok(Step {
+                loss,
+                terms: Vec::new(),
+                samples,
+            })
+        }
+
+        fn validate(&self, _: &Self::Model, _: &mut BTreeMap<String, f64>) -> Result<()> {
+            Ok(())
+        }
+
+        fn plots(&self) -> &'static [Plot] {
+            &[]
+        }
+    }
+
+    fn toy_fit(name: &str, fail_at: Option<usize>) -> (Toy, Result<burn::nn::Linear>) {
+        let root = std::env::temp_dir().join(format!("sdf_fit_{name}_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let run = RunDir::prepare(&root, "model = \"toy\"\n", false).unwrap();
+        let optimizer = OptimizerConfig::adam(1e-2);
+        let setup = Fit {
+            run: &run,
+            config: "model = \"toy\"\n",
+            seed: 5,
+            epochs: 2,
+            batch_size: 3,
+            optimizer: &optimizer,
+            resume: false,
+            quiet: true,
+        };
+        let device = Device::flex().autodiff();
+        let model = burn::nn::LinearConfig::new(1, 1).init(&device);
+        let toy = Toy {
+            len: 10,
+            fail_at,
+            seen: Default::default(),
+        };
+        let out = fit(&toy, &setup, model);
+        let _ = std::fs::remove_dir_all(&root);
+        (toy, out)
+    }
+
+    #[test]
+    fn prefetched_batches_train_in_the_seeded_order_with_their_own_generators() {
+        let (toy, out) = toy_fit("order", None);
+        out.unwrap();
+        let mut expected = Vec::new();
+        for epoch in 0..2 {
+            let order = epoch_order(10, 5, epoch);
+            for (bi, ids) in order.chunks(3).enumerate() {
+                let draw = rand::Rng::next_u64(&mut batch_rng(5, epoch, bi));
+                expected.push((ids.to_vec(), draw));
+            }
+        }
+        assert_eq!(*toy.seen.lock().unwrap(), expected);
+    }
+
+    #[test]
+    fn a_loading_error_ends_the_epoch_with_that_error() {
+        let (toy, out) = toy_fit("fail", Some(7));
+        let Err(e) = out else {
+            panic!("the run went on although a batch failed to load")
+        };
+        let message = e.to_string();
+        assert!(message.contains("sample 7 is unreadable"), "{message}");
+        // The batches before the bad one trained; none after it.
+        let seen = toy.seen.lock().unwrap();
+        let order = epoch_order(10, 5, 0);
+        let bad_batch = order.iter().position(|&i| i == 7).unwrap() / 3;
+        assert_eq!(seen.len(), bad_batch);
     }
 }

@@ -68,25 +68,40 @@ impl GrayF32 {
     /// Separable convolution with a symmetric kernel (borders clamped).
     pub fn convolve_separable(&self, kx: &[f32], ky: &[f32]) -> GrayF32 {
         let (w, h) = (self.width, self.height);
-        let (rx, ry) = ((kx.len() / 2) as isize, (ky.len() / 2) as isize);
+        if w == 0 || h == 0 {
+            return GrayF32::new(w, h);
+        }
+        let (rx, ry) = (kx.len() / 2, (ky.len() / 2) as isize);
+        // Rows: each padded by its clamped border pixels, then one multiply-add pass per
+        // tap over the whole row (vectorised; the taps are summed in order, as a per-pixel
+        // sum over the taps would).
         let mut tmp = GrayF32::new(w, h);
-        tmp.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (x, out) in row.iter_mut().enumerate() {
-                *out = kx
-                    .iter()
-                    .enumerate()
-                    .map(|(k, c)| c * self.get_clamped(x as isize + k as isize - rx, y as isize))
-                    .sum();
-            }
-        });
+        tmp.data
+            .par_chunks_mut(w)
+            .zip(self.data.par_chunks(w))
+            .for_each_init(Vec::new, |padded, (out, row)| {
+                padded.clear();
+                padded.extend(std::iter::repeat_n(row[0], rx));
+                padded.extend_from_slice(row);
+                padded.extend(std::iter::repeat_n(
+                    row[w - 1],
+                    kx.len().saturating_sub(rx + 1),
+                ));
+                for (k, &c) in kx.iter().enumerate() {
+                    for (o, &v) in out.iter_mut().zip(&padded[k..k + w]) {
+                        *o += c * v;
+                    }
+                }
+            });
+        // Columns: each output row is the taps' rows (clamped at the borders) multiplied
+        // and added in order.
         let mut out = GrayF32::new(w, h);
         out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                *o = ky
-                    .iter()
-                    .enumerate()
-                    .map(|(k, c)| c * tmp.get_clamped(x as isize, y as isize + k as isize - ry))
-                    .sum();
+            for (k, &c) in ky.iter().enumerate() {
+                let sy = (y as isize + k as isize - ry).clamp(0, h as isize - 1) as usize;
+                for (o, &v) in row.iter_mut().zip(&tmp.data[sy * w..(sy + 1) * w]) {
+                    *o += c * v;
+                }
             }
         });
         out
@@ -157,5 +172,62 @@ mod tests {
         assert_eq!(gy.get(4, 3), 0.0);
         assert!((img.sample(2.5, 1.0) - 2.5).abs() < 1e-6);
         assert!((gaussian_kernel(1.0).iter().sum::<f32>() - 1.0).abs() < 1e-6);
+    }
+
+    /// The per-pixel definition: each output the in-order sum over the taps of the clamped
+    /// input.
+    fn convolve_reference(img: &GrayF32, kx: &[f32], ky: &[f32]) -> GrayF32 {
+        let (w, h) = (img.width, img.height);
+        let (rx, ry) = ((kx.len() / 2) as isize, (ky.len() / 2) as isize);
+        let mut tmp = GrayF32::new(w, h);
+        let mut out = GrayF32::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                tmp.data[y * w + x] = kx
+                    .iter()
+                    .enumerate()
+                    .map(|(k, c)| c * img.get_clamped(x as isize + k as isize - rx, y as isize))
+                    .fold(0.0, |a, b| a + b);
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                out.data[y * w + x] = ky
+                    .iter()
+                    .enumerate()
+                    .map(|(k, c)| c * tmp.get_clamped(x as isize, y as isize + k as isize - ry))
+                    .fold(0.0, |a, b| a + b);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn separable_convolution_equals_its_per_pixel_definition_bit_for_bit() {
+        let kernels: [&[f32]; 4] = [
+            &gaussian_kernel(2.0),
+            &[-1.0, 0.0, 1.0],
+            &[0.25, 0.75],
+            &[1.0],
+        ];
+        for (w, h) in [(37, 23), (3, 2), (1, 1), (640, 4)] {
+            let mut img = GrayF32::new(w, h);
+            for (i, v) in img.data.iter_mut().enumerate() {
+                *v = ((i * 7919) % 257) as f32 / 256.0 - 0.3;
+            }
+            for kx in kernels {
+                for ky in kernels {
+                    let fast = img.convolve_separable(kx, ky);
+                    let slow = convolve_reference(&img, kx, ky);
+                    assert_eq!(
+                        fast.data,
+                        slow.data,
+                        "{w}x{h}, {} x {} taps",
+                        kx.len(),
+                        ky.len()
+                    );
+                }
+            }
+        }
     }
 }

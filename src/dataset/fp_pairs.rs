@@ -15,6 +15,7 @@ use crate::geometry::Pose;
 use crate::raster::GrayF32;
 use image::RgbImage;
 use nalgebra::{Point2, Point3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -262,30 +263,57 @@ pub fn fp_pair(camera: &Camera, a: &Frame, b: &Frame, cfg: &FpConfig) -> Result<
     map_corners(camera, a, b, corners, cfg)
 }
 
-/// All FP pairs of a sequence (pairs from [`pair_indices`]), computed lazily; each
-/// frame is decoded once while it can still be part of a pair.
-pub fn fp_pairs<'a>(
-    seq: &'a TumSequence,
-    camera: &'a Camera,
-    cfg: &'a FpConfig,
-) -> impl Iterator<Item = Result<FpPair>> + 'a {
-    let mut cache: BTreeMap<usize, Frame> = BTreeMap::new();
-    pair_indices(seq.len(), &cfg.gaps)
-        .into_iter()
-        .map(move |(i, j)| {
-            cache.retain(|&k, _| k >= i);
-            for idx in [i, j] {
-                if let std::collections::btree_map::Entry::Vacant(e) = cache.entry(idx) {
-                    e.insert(seq.load_frame(idx)?);
-                }
-            }
-            match (cache.get(&i), cache.get(&j)) {
-                (Some(a), Some(b)) => fp_pair(camera, a, b, cfg),
-                _ => Err(Error::msg(format!(
-                    "frames {i} and {j} could not be loaded"
-                ))),
-            }
+/// Consecutive first frames whose pairs one worker of [`fp_pairs`] computes, decoding each
+/// frame they need once (a block decodes `PAIR_BLOCK` + the largest gap frames).
+const PAIR_BLOCK: usize = 32;
+
+/// All FP pairs of a sequence, in [`pair_indices`] order, computed in parallel: the pairs
+/// are cut into blocks of [`PAIR_BLOCK`] consecutive first frames, and each block decodes
+/// the frames it needs once and keeps them only while it runs.
+pub fn fp_pairs(seq: &TumSequence, camera: &Camera, cfg: &FpConfig) -> Vec<Result<FpPair>> {
+    pairs_in_blocks(seq, camera, cfg, PAIR_BLOCK)
+}
+
+fn pairs_in_blocks(
+    seq: &TumSequence,
+    camera: &Camera,
+    cfg: &FpConfig,
+    block: usize,
+) -> Vec<Result<FpPair>> {
+    let pairs = pair_indices(seq.len(), &cfg.gaps);
+    let block = block.max(1);
+    let blocks: Vec<&[(usize, usize)]> =
+        pairs.chunk_by(|p, q| p.0 / block == q.0 / block).collect();
+    let done: Vec<Vec<Result<FpPair>>> = blocks
+        .par_iter()
+        .map(|block| {
+            let mut cache: BTreeMap<usize, Frame> = BTreeMap::new();
+            // A's corners, for the consecutive pairs that share A ([`fp_pair`] per pair).
+            let mut corners: Option<(usize, Vec<Keypoint>)> = None;
+            block
+                .iter()
+                .map(|&(i, j)| {
+                    cache.retain(|&k, _| k >= i);
+                    for idx in [i, j] {
+                        if let std::collections::btree_map::Entry::Vacant(e) = cache.entry(idx) {
+                            e.insert(seq.load_frame(idx)?);
+                        }
+                    }
+                    let (Some(a), Some(b)) = (cache.get(&i), cache.get(&j)) else {
+                        return Err(Error::msg(format!(
+                            "frames {i} and {j} could not be loaded"
+                        )));
+                    };
+                    if corners.as_ref().is_none_or(|(k, _)| *k != i) {
+                        corners = Some((i, detector_targets(&a.rgb, &cfg.harris).0));
+                    }
+                    let of_a = corners.as_ref().map(|(_, c)| c.clone()).unwrap_or_default();
+                    map_corners(camera, a, b, of_a, cfg)
+                })
+                .collect()
         })
+        .collect();
+    done.into_iter().flatten().collect()
 }
 
 #[cfg(test)]
@@ -344,9 +372,37 @@ mod tests {
             gaps: vec![3],
             ..cfg.clone()
         };
-        let all: Vec<FpPair> = fp_pairs(&seq, &cam, &cfg3).collect::<Result<_>>().unwrap();
+        let all: Vec<FpPair> = fp_pairs(&seq, &cam, &cfg3)
+            .into_iter()
+            .collect::<Result<_>>()
+            .unwrap();
         assert_eq!(all.len(), 7);
         assert_eq!(all[0], pair);
+    }
+
+    #[test]
+    fn pairs_in_parallel_blocks_equal_pairs_one_by_one() {
+        let seq = TumSequence::open(FIXTURE).unwrap();
+        let cam = Camera::tum_fr1();
+        let cfg = FpConfig {
+            gaps: vec![1, 3],
+            ..FpConfig::default()
+        };
+        let expected: Vec<FpPair> = pair_indices(seq.len(), &cfg.gaps)
+            .into_iter()
+            .map(|(i, j)| {
+                let (a, b) = (seq.load_frame(i).unwrap(), seq.load_frame(j).unwrap());
+                fp_pair(&cam, &a, &b, &cfg).unwrap()
+            })
+            .collect();
+        assert_eq!(expected.len(), 16);
+        for block in [1, 3, PAIR_BLOCK] {
+            let got: Vec<FpPair> = pairs_in_blocks(&seq, &cam, &cfg, block)
+                .into_iter()
+                .collect::<Result<_>>()
+                .unwrap();
+            assert_eq!(got, expected, "blocks of {block} first frames");
+        }
     }
 
     #[test]

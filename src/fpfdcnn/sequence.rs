@@ -193,23 +193,25 @@ fn posed_pairs<'a>(
         fw as f32 / camera.width as f32,
         fh as f32 / camera.height as f32,
     );
-    fp_pairs(seq, camera, &cfg.pairs).filter_map(move |pair| {
-        let pair = match pair {
-            Ok(p) => p,
-            Err(e) => return Some(Err(e)),
-        };
-        let (a, b) = (pair.frame_a, pair.frame_b);
-        let matches: Vec<FpMatch> = pair
-            .matches
-            .iter()
-            .map(|m| FpMatch {
-                a: scale_point(m.a, sx, sy),
-                b: scale_point(m.b, sx, sy),
-            })
-            .filter(|m| inside(m.a, fw, fh) && inside(m.b, fw, fh))
-            .collect();
-        (matches.len() >= 8).then_some(Ok((a, b, matches)))
-    })
+    fp_pairs(seq, camera, &cfg.pairs)
+        .into_iter()
+        .filter_map(move |pair| {
+            let pair = match pair {
+                Ok(p) => p,
+                Err(e) => return Some(Err(e)),
+            };
+            let (a, b) = (pair.frame_a, pair.frame_b);
+            let matches: Vec<FpMatch> = pair
+                .matches
+                .iter()
+                .map(|m| FpMatch {
+                    a: scale_point(m.a, sx, sy),
+                    b: scale_point(m.b, sx, sy),
+                })
+                .filter(|m| inside(m.a, fw, fh) && inside(m.b, fw, fh))
+                .collect();
+            (matches.len() >= 8).then_some(Ok((a, b, matches)))
+        })
 }
 
 /// Maps a pixel position to an image resized by `scale` (pixel centres aligned).

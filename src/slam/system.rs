@@ -7,7 +7,7 @@
 //! the final pose graph is solved from the tracked poses with all constraints.
 
 use super::bundle_adjustment::{BaSummary, refine_frames};
-use super::config::SlamConfig;
+use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::keypoints::KeypointSource;
 use super::local_mapper::{LocalMapper, MapperInput};
@@ -441,12 +441,10 @@ impl Slam {
                 map.clone(),
                 control.log.clone(),
             ),
-            correction: CorrectionStage {
-                corrector: Corrector::new(config.clone(), camera.clone()),
-                online: config.correction.optimise_online,
-                time: StageTime::default(),
-                optimisation: StageTime::default(),
-            },
+            correction: CorrectionStage::new(
+                Corrector::new(config.clone(), camera.clone()),
+                &config.correction,
+            ),
         };
         let frames = Frames {
             sequence: &sequence,
@@ -553,24 +551,43 @@ struct Stages {
 }
 
 /// Data correction's share of each keyframe, the same in both run orders: keyframe-pair
-/// constraints and, when a loop closes and `correction.optimise_online` is set, a
-/// pose-graph solve.
+/// constraints and, when `correction.optimise_online` is set, a pose-graph solve once a
+/// loop has closed since the last one and `correction.optimise_every` keyframes have
+/// passed.
 struct CorrectionStage {
     corrector: Corrector,
     online: bool,
+    every: usize,
+    /// Keyframes since the last online solve, and whether one of them closed a loop.
+    since_solve: usize,
+    loop_pending: bool,
     time: StageTime,
     optimisation: StageTime,
 }
 
 impl CorrectionStage {
+    fn new(corrector: Corrector, cfg: &CorrectionConfig) -> Self {
+        CorrectionStage {
+            corrector,
+            online: cfg.optimise_online,
+            every: cfg.optimise_every.max(1),
+            since_solve: 0,
+            loop_pending: false,
+            time: StageTime::default(),
+            optimisation: StageTime::default(),
+        }
+    }
+
     fn add_keyframe(&mut self, map: &SharedMap, id: usize) {
         let t = Instant::now();
-        let loops = self.corrector.add_keyframe(map, id);
+        self.loop_pending |= self.corrector.add_keyframe(map, id);
+        self.since_solve += 1;
         self.time.add(t);
-        if loops && self.online {
+        if self.online && self.loop_pending && self.since_solve >= self.every {
             let t = Instant::now();
             self.corrector.optimise(map);
             self.optimisation.add(t);
+            (self.since_solve, self.loop_pending) = (0, false);
         }
     }
 }

@@ -517,8 +517,14 @@ pub struct CorrectionConfig {
     /// Robust kernel on the whitened edge error, and its scale.
     pub robust_kernel: RobustKernel,
     pub robust_delta: f64,
-    /// Optimise as soon as a loop constraint is found (otherwise once at the end).
+    /// Optimise while the run goes on when a loop constraint is found (otherwise once at
+    /// the end). Every solve starts from the tracked poses, so online solves change the live
+    /// map, never the final trajectory.
     pub optimise_online: bool,
+    /// Online, at most one solve per this many keyframes (1: at every keyframe that closes
+    /// a loop). Over long sequences nearly every keyframe closes one (proximity pairs), and
+    /// a solve costs more as the graph grows.
+    pub optimise_every: usize,
     /// Local correction on/off.
     pub local: bool,
     /// Local correction: a keyframe's depth is rescaled by the median ratio of its
@@ -549,6 +555,7 @@ impl Default for CorrectionConfig {
             robust_kernel: RobustKernel::Huber,
             robust_delta: 3.0,
             optimise_online: true,
+            optimise_every: 10,
             local: true,
             local_min_observations: 20,
             local_max_scale_change: 0.2,

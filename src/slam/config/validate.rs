@@ -89,6 +89,12 @@ impl SlamConfig {
             10_000,
             "correction.lm_iterations",
         )?;
+        count(
+            self.correction.optimise_every,
+            1,
+            1_000_000,
+            "correction.optimise_every",
+        )?;
         count(self.system.queue, 1, 1024, "system.queue")?;
         count(
             self.system.max_eval_points,

@@ -35,6 +35,10 @@ pub struct FpfdcnnTrainConfig {
     pub epochs: usize,
     #[serde(default = "default_batch")]
     pub batch_size: usize,
+    /// Train each batch in this many parts with their gradients summed (gradient
+    /// accumulation): the same step on a batch this many times smaller in memory.
+    #[serde(default = "default_accumulate")]
+    pub accumulate: usize,
     /// How many epoch checkpoints to keep, the newest ones (0: all, e.g. to average the
     /// last epochs' weights with `train average`).
     #[serde(default = "default_keep")]
@@ -78,6 +82,9 @@ fn default_seed() -> u64 {
 }
 fn default_batch() -> usize {
     4
+}
+fn default_accumulate() -> usize {
+    1
 }
 fn default_keep() -> usize {
     3
@@ -191,6 +198,12 @@ impl FpfdcnnTrainConfig {
         }
         if cfg.batch_size == 0 || cfg.epochs == 0 {
             return bad("batch_size and epochs must be at least 1".into());
+        }
+        if !(1..=cfg.batch_size).contains(&cfg.accumulate) {
+            return bad(format!(
+                "accumulate must be in 1..=batch_size ({}), got {}",
+                cfg.batch_size, cfg.accumulate
+            ));
         }
         if cfg.batch_size > 1024 || cfg.epochs > 100_000 {
             return bad(format!(

@@ -142,6 +142,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         seed: cfg.seed,
         epochs: cfg.epochs,
         batch_size: cfg.batch_size,
+        accumulate: cfg.accumulate,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
         quiet: opts.quiet,
@@ -210,7 +211,8 @@ impl Learner for FpLearner<'_> {
         };
         let ids: Vec<usize> = (0..keep).map(|k| k * n / keep).collect();
         let mut meter = Meter::default();
-        for (bi, c) in ids.chunks(cfg.batch_size).enumerate() {
+        let part = cfg.batch_size.div_ceil(cfg.accumulate.max(1));
+        for (bi, c) in ids.chunks(part).enumerate() {
             let mut rng = batch_rng(cfg.seed, usize::MAX, bi);
             let batch = self
                 .val

@@ -32,6 +32,11 @@ pub struct SdfcnnTrainConfig {
     pub epochs: usize,
     /// Images per step (the paper: 20).
     pub batch_size: usize,
+    /// Train each batch in this many parts with their gradients summed (gradient
+    /// accumulation): the same step on a batch this many times smaller in memory. Batch
+    /// normalisation then normalises each part by its own statistics.
+    #[serde(default = "default_accumulate")]
+    pub accumulate: usize,
     /// How many epoch checkpoints to keep (0 = all).
     #[serde(default = "default_keep")]
     pub keep_checkpoints: usize,
@@ -64,6 +69,10 @@ fn default_seed() -> u64 {
 
 fn default_keep() -> usize {
     3
+}
+
+fn default_accumulate() -> usize {
+    1
 }
 
 fn optimizer_over<'de, D: serde::Deserializer<'de>>(
@@ -179,6 +188,12 @@ impl SdfcnnTrainConfig {
         }
         if self.batch_size == 0 {
             return Err("batch_size must be at least 1".into());
+        }
+        if !(1..=self.batch_size).contains(&self.accumulate) {
+            return Err(format!(
+                "accumulate must be in 1..=batch_size ({}), got {}",
+                self.batch_size, self.accumulate
+            ));
         }
         if !(1..=100_000).contains(&self.epochs) {
             return Err(format!(

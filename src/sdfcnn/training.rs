@@ -115,6 +115,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         seed: cfg.seed,
         epochs: cfg.epochs,
         batch_size: cfg.batch_size,
+        accumulate: cfg.accumulate,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
         quiet: opts.quiet,

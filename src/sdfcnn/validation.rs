@@ -35,7 +35,8 @@ pub(super) fn validate(
         .map(|_| (ConfusionMatrix::new(classes), DepthAccumulator::default()))
         .collect();
     let none = AugmentConfig::none();
-    for chunk in indices.chunks(cfg.batch_size) {
+    // Batches of a training part: the memory of a training step bounds validation's too.
+    for chunk in indices.chunks(cfg.batch_size.div_ceil(cfg.accumulate.max(1))) {
         let samples = data.load_batch(chunk, size, &none, &mut batch_rng(0, 0, 0))?;
         let batch = SdfcnnBatch::from_samples(&samples, &device)?;
         let quarter = forward(model, batch.images, LossResolution::Quarter)?;

@@ -21,7 +21,7 @@ use super::{
 };
 use crate::error::{Error, Result};
 use burn::module::Module;
-use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsAccumulator, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand_chacha::ChaCha8Rng;
@@ -101,6 +101,9 @@ pub struct Fit<'a> {
     pub seed: u64,
     pub epochs: usize,
     pub batch_size: usize,
+    /// Each batch in this many parts, trained one after the other with their gradients
+    /// summed before the step: peak memory of a batch this many times smaller.
+    pub accumulate: usize,
     pub optimizer: &'a OptimizerConfig,
     /// Continue from the run's last checkpoint (the model given is then only its shape).
     pub resume: bool,
@@ -245,6 +248,19 @@ fn train_epoch<L: Learner + Sync>(
         order.truncate(learner.samples_per_epoch());
     }
     let batches: Vec<&[usize]> = order.chunks(fit.batch_size.max(1)).collect();
+    // Each batch in `accumulate` parts of at most `part` samples (the last batch may have
+    // fewer parts); part `m` of batch `bi` draws from generator `bi * accumulate + m`.
+    let accumulate = fit.accumulate.clamp(1, fit.batch_size.max(1));
+    let part = fit.batch_size.max(1).div_ceil(accumulate);
+    let parts: Vec<(usize, usize, &[usize])> = batches
+        .iter()
+        .enumerate()
+        .flat_map(|(bi, ids)| {
+            ids.chunks(part)
+                .enumerate()
+                .map(move |(m, p)| (bi, bi * accumulate + m, p))
+        })
+        .collect();
     let bar = progress_bar(batches.len(), epoch, fit.epochs, fit.quiet);
     let mut meter = Meter::default();
     let mut loading = Loading::default();
@@ -252,11 +268,11 @@ fn train_epoch<L: Learner + Sync>(
     let model = std::thread::scope(|scope| -> Result<L::Model> {
         let mut model = model;
         let (tx, rx) = mpsc::sync_channel::<(Result<L::Batch>, Duration)>(PREFETCH);
-        let (seed, to_load) = (fit.seed, &batches);
+        let (seed, to_load) = (fit.seed, &parts);
         scope.spawn(move || {
-            for (bi, ids) in to_load.iter().enumerate() {
+            for &(_, stream, ids) in to_load {
                 let started = Instant::now();
-                let batch = learner.load(ids, &mut batch_rng(seed, epoch, bi));
+                let batch = learner.load(ids, &mut batch_rng(seed, epoch, stream));
                 let failed = batch.is_err();
                 // A closed channel means the step side stopped (an error): stop too.
                 if tx.send((batch, started.elapsed())).is_err() || failed {
@@ -264,20 +280,44 @@ fn train_epoch<L: Learner + Sync>(
                 }
             }
         });
-        for bi in 0..batches.len() {
-            let waiting = Instant::now();
-            let (batch, load) = rx.recv().map_err(|_| {
-                Error::msg(format!(
-                    "epoch {} batch {bi}: the data loader thread stopped",
-                    epoch + 1
-                ))
-            })?;
-            loading.wait += waiting.elapsed();
-            loading.load += load;
-            let step = learner.train_step(&model, batch?)?;
-            let value = step.loss.clone().into_scalar::<f32>() as f64;
-            check_finite(value, epoch, bi, fit.run)?;
-            let grads = GradientsParams::from_grads(step.loss.backward(), &model);
+        let mut next = 0;
+        for (bi, ids) in batches.iter().enumerate() {
+            // The batch's gradient: its parts' gradients, each weighted by its share of the
+            // batch's samples, summed (one part: as it is).
+            let mut accumulator = GradientsAccumulator::<L::Model>::new();
+            let mut grads = None;
+            let mut part_terms = Vec::new();
+            while next < parts.len() && parts[next].0 == bi {
+                let share = parts[next].2.len() as f32 / ids.len() as f32;
+                next += 1;
+                let waiting = Instant::now();
+                let (batch, load) = rx.recv().map_err(|_| {
+                    Error::msg(format!(
+                        "epoch {} batch {bi}: the data loader thread stopped",
+                        epoch + 1
+                    ))
+                })?;
+                loading.wait += waiting.elapsed();
+                loading.load += load;
+                let step = learner.train_step(&model, batch?)?;
+                let value = step.loss.clone().into_scalar::<f32>() as f64;
+                check_finite(value, epoch, bi, fit.run)?;
+                let mut terms = vec![("loss", value)];
+                terms.extend(step.terms);
+                part_terms.push((terms, step.samples));
+                let loss = if accumulate == 1 {
+                    step.loss
+                } else {
+                    step.loss.mul_scalar(share)
+                };
+                let g = GradientsParams::from_grads(loss.backward(), &model);
+                if accumulate == 1 {
+                    grads = Some(g);
+                } else {
+                    accumulator.accumulate(&model, g);
+                }
+            }
+            let grads = grads.unwrap_or_else(|| accumulator.grads());
             let bad = non_finite_grads(&model, &grads);
             bar.inc(1);
             if !bad.is_empty() {
@@ -306,9 +346,9 @@ fn train_epoch<L: Learner + Sync>(
             skipped = 0;
             model = optim.step(lr, model, grads);
             state.step += 1;
-            let mut terms = vec![("loss", value)];
-            terms.extend(step.terms);
-            meter.add(&terms, step.samples);
+            for (terms, samples) in &part_terms {
+                meter.add(terms, *samples);
+            }
             bar.set_message(meter.line());
         }
         Ok(model)
@@ -443,22 +483,29 @@ mod tests {
         }
     }
 
-    fn toy_fit(name: &str, fail_at: Option<usize>) -> (Toy, Result<burn::nn::Linear>) {
+    fn toy_fit(
+        name: &str,
+        fail_at: Option<usize>,
+        accumulate: usize,
+    ) -> (Toy, Result<burn::nn::Linear>) {
         let root = std::env::temp_dir().join(format!("sdf_fit_{name}_{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let run = RunDir::prepare(&root, "model = \"toy\"\n", false).unwrap();
-        let optimizer = OptimizerConfig::adam(1e-2);
+        // SGD: its step scales with the gradient (Adam's would not show a wrong weighting).
+        let optimizer = OptimizerConfig::sgd_paper();
         let setup = Fit {
             run: &run,
             config: "model = \"toy\"\n",
             seed: 5,
             epochs: 2,
             batch_size: 3,
+            accumulate,
             optimizer: &optimizer,
             resume: false,
             quiet: true,
         };
         let device = Device::flex().autodiff();
+        device.seed(3);
         let model = burn::nn::LinearConfig::new(1, 1).init(&device);
         let toy = Toy {
             len: 10,
@@ -472,7 +519,7 @@ mod tests {
 
     #[test]
     fn prefetched_batches_train_in_the_seeded_order_with_their_own_generators() {
-        let (toy, out) = toy_fit("order", None);
+        let (toy, out) = toy_fit("order", None, 1);
         out.unwrap();
         let mut expected = Vec::new();
         for epoch in 0..2 {
@@ -486,8 +533,32 @@ mod tests {
     }
 
     #[test]
+    fn accumulated_parts_make_the_whole_batch_step() {
+        // A linear network has no batch statistics: a batch in three parts of one sample
+        // gives the gradient of the whole batch, so the same weights after two epochs.
+        let weights = |m: &burn::nn::Linear| -> Vec<f32> {
+            let w = m.weight.val().into_data().try_to_vec::<f32>().unwrap();
+            let b = m.bias.as_ref().unwrap().val().into_data();
+            [w, b.try_to_vec::<f32>().unwrap()].concat()
+        };
+        let (_, whole) = toy_fit("whole", None, 1);
+        let (toy, parts) = toy_fit("parts", None, 3);
+        let (whole, parts) = (weights(&whole.unwrap()), weights(&parts.unwrap()));
+        for (a, b) in whole.iter().zip(&parts) {
+            assert!(
+                (a - b).abs() <= 1e-5 * a.abs().max(1.0),
+                "{whole:?} vs {parts:?}"
+            );
+        }
+        // Every sample trained once per epoch, one part at a time.
+        let seen = toy.seen.lock().unwrap();
+        assert!(seen.iter().all(|(ids, _)| ids.len() == 1));
+        assert_eq!(seen.len(), 20);
+    }
+
+    #[test]
     fn a_loading_error_ends_the_epoch_with_that_error() {
-        let (toy, out) = toy_fit("fail", Some(7));
+        let (toy, out) = toy_fit("fail", Some(7), 1);
         let Err(e) = out else {
             panic!("the run went on although a batch failed to load")
         };

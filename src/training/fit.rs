@@ -283,9 +283,8 @@ fn train_epoch<L: Learner + Sync>(
         let mut next = 0;
         for (bi, ids) in batches.iter().enumerate() {
             // The batch's gradient: its parts' gradients, each weighted by its share of the
-            // batch's samples, summed (one part: as it is).
+            // batch's samples, summed (a batch in one part: its gradient as it is).
             let mut accumulator = GradientsAccumulator::<L::Model>::new();
-            let mut grads = None;
             let mut part_terms = Vec::new();
             while next < parts.len() && parts[next].0 == bi {
                 let share = parts[next].2.len() as f32 / ids.len() as f32;
@@ -305,19 +304,15 @@ fn train_epoch<L: Learner + Sync>(
                 let mut terms = vec![("loss", value)];
                 terms.extend(step.terms);
                 part_terms.push((terms, step.samples));
-                let loss = if accumulate == 1 {
-                    step.loss
-                } else {
+                let loss = if share < 1.0 {
                     step.loss.mul_scalar(share)
-                };
-                let g = GradientsParams::from_grads(loss.backward(), &model);
-                if accumulate == 1 {
-                    grads = Some(g);
                 } else {
-                    accumulator.accumulate(&model, g);
-                }
+                    step.loss
+                };
+                accumulator
+                    .accumulate(&model, GradientsParams::from_grads(loss.backward(), &model));
             }
-            let grads = grads.unwrap_or_else(|| accumulator.grads());
+            let grads = accumulator.grads();
             let bad = non_finite_grads(&model, &grads);
             bar.inc(1);
             if !bad.is_empty() {

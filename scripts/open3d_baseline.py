@@ -145,4 +145,8 @@ def main():
 
 
 if __name__ == '__main__':
-    main()
+    try:
+        main()
+    except (OSError, ValueError, RuntimeError, IndexError) as e:
+        # Unreadable files, malformed lists or camera values, Open3D failures: one line.
+        sys.exit(f'open3d_baseline: {e}')

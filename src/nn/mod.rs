@@ -19,6 +19,7 @@ pub mod resize;
 pub mod shuffle;
 pub mod trace;
 pub mod weights;
+pub mod winograd;
 
 pub use activation::elu;
 pub use batch_norm_kernel::batch_norm;

@@ -20,6 +20,7 @@
 //! results agree with Burn's `conv2d` to float rounding (tests below, and
 //! `fpfdcnn::packed`'s against the whole network).
 
+use super::winograd::Winograd;
 use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use rayon::prelude::*;
@@ -33,9 +34,9 @@ const SMALL_K: usize = 32;
 /// whose zero border is written once per input size, the wide output and the im2col matrix.
 #[derive(Debug, Default)]
 pub struct Scratch {
-    /// The input size and convolution (`[h, w, c, k, stride, padding]`) `src` was laid out
-    /// for: a buffer is reused only by the same convolution on the same size.
-    layout: Option<[usize; 6]>,
+    /// The input size and convolution (`[h, w, c, k, stride, padding, winograd]`) `src` was
+    /// laid out for: a buffer is reused only by the same convolution on the same size.
+    layout: Option<[usize; 7]>,
     src: Vec<f32>,
     wide: Vec<f32>,
     col: Vec<f32>,
@@ -65,10 +66,14 @@ pub struct PackedConv {
     padding: usize,
     /// Channels after space-to-depth (stride 2: 4·cin).
     c: usize,
-    /// Per kernel row `ky`: a row-major `[k·c, cout]` matrix, row index `kx·c + channel`.
+    /// Per kernel row `ky`: a row-major `[k·c, cout]` matrix, row index `kx·c + channel`
+    /// (empty where `winograd` is used).
     weight: Vec<f32>,
     bias: Vec<f32>,
     activation: Activation,
+    /// The same kernels for Winograd's algorithm (2×2 and 3×3 after space-to-depth, unless
+    /// the input has too few channels for the transforms to pay).
+    winograd: Option<Winograd>,
 }
 
 /// The shape of a square convolution.
@@ -220,6 +225,17 @@ impl PackedConv {
                 }
             }
         }
+        let winograd = if k * c >= SMALL_K {
+            Winograd::new(&weight, k, c, cout)
+        } else {
+            None
+        };
+        // The direct form's weights are kept only where they are used.
+        let weight = if winograd.is_some() {
+            Vec::new()
+        } else {
+            weight
+        };
         Ok(Self {
             cin,
             cout,
@@ -227,6 +243,7 @@ impl PackedConv {
             stride,
             padding,
             c,
+            winograd,
             weight,
             bias: bias.to_vec(),
             activation,
@@ -289,7 +306,8 @@ impl PackedConv {
     }
 
     /// The convolution of `x`, bias and activation included, computed in `scratch`, which
-    /// holds the result (rows of the wide grid, `k − 1` columns wider than the image).
+    /// holds the result (compact from Winograd's algorithm; otherwise rows of the wide grid,
+    /// `k − 1` columns wider than the image).
     pub fn forward_view<'s>(
         &self,
         x: NhwcView<'_>,
@@ -315,7 +333,33 @@ impl PackedConv {
         } else {
             (hp, wp)
         };
-        let layout = [x.h, x.w, x.c, self.k, self.stride, p];
+        let (oh, ow) = (sh - self.k + 1, sw - self.k + 1);
+        if let Some(wino) = &self.winograd {
+            // Whole tiles: the source grows to a multiple of the tile (zeros beyond the image).
+            let [hs, ws] = wino.source_size([oh, ow]);
+            let layout = [x.h, x.w, x.c, self.k, self.stride, p, 1];
+            if scratch.layout != Some(layout) {
+                scratch.src.clear();
+                scratch.src.resize(hs * ws * self.c, 0.0);
+                scratch.layout = Some(layout);
+            }
+            if self.stride == 2 {
+                space_to_depth_padded(&x, p, ws, &mut scratch.src);
+            } else {
+                pad_into(&x, p, ws, &mut scratch.src);
+            }
+            scratch.wide.resize(oh * ow * self.cout, 0.0);
+            let (src, out) = (&scratch.src, &mut scratch.wide);
+            wino.forward(src, ws, [oh, ow], &self.bias, self.activation, out);
+            return Ok(NhwcView {
+                h: oh,
+                w: ow,
+                c: self.cout,
+                stride: ow,
+                data: &scratch.wide,
+            });
+        }
+        let layout = [x.h, x.w, x.c, self.k, self.stride, p, 0];
         if scratch.layout != Some(layout) {
             scratch.src.clear();
             scratch.src.resize((sh * sw + self.k) * self.c, 0.0);
@@ -325,9 +369,8 @@ impl PackedConv {
         if self.stride == 2 {
             space_to_depth_padded(&x, p, sw, src);
         } else {
-            pad_into(&x, p, src);
+            pad_into(&x, p, sw, src);
         }
-        let (oh, ow) = (sh - self.k + 1, sw - self.k + 1);
         let rows = oh * sw;
         // Every value is written by the first product (it does not read them).
         scratch.wide.resize(rows * self.cout, 0.0);
@@ -401,10 +444,9 @@ impl PackedConv {
     }
 }
 
-/// Copies `x` into the centre of an image padded by `p` on every side (the border is left
-/// as it is: zero).
-fn pad_into(x: &NhwcView, p: usize, dst: &mut [f32]) {
-    let wp = x.w + 2 * p;
+/// Copies `x` into an image of `wp` pixels per row at offset `(p, p)` (the rest is left as
+/// it is: zero).
+fn pad_into(x: &NhwcView, p: usize, wp: usize, dst: &mut [f32]) {
     let row = x.w * x.c;
     let rows = &mut dst[p * wp * x.c..(p + x.h) * wp * x.c];
     rows.par_chunks_mut(wp * x.c)
@@ -491,7 +533,9 @@ mod tests {
         check(1, 8, 4, 2, 1, [16, 24]); // L1
         check(3, 8, 3, 2, 1, [16, 24]); // SDFCNN Layer1 (odd kernel, stride 2)
         check(5, 7, 4, 2, 1, [12, 8]); // L2, L4, L6
-        check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9
+        check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9 with few channels (direct)
+        check(16, 9, 3, 1, 1, [7, 11]); // the same through Winograd's F(2x2, 3x3)
+        check(8, 5, 4, 2, 1, [12, 10]); // L2, L4, L6 through F(3x3, 2x2)
         check(9, 4, 1, 1, 0, [5, 6]); // L8, L10
         check(3, 3, 5, 1, 2, [6, 6]);
     }

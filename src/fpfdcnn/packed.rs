@@ -19,15 +19,18 @@ pub struct PackedOutput {
 }
 
 /// FPFDCNN's ten convolutions packed for [`PackedConv::forward_view`], with their buffers
-/// (kept between calls: no allocation per image once the size is known).
+/// (kept between calls: no allocation per image once the size is known, also when several
+/// threads run the network at once: each call takes a set of buffers from a pool and puts it
+/// back).
 #[derive(Debug)]
 pub struct PackedFpfdcnn {
     encoder: Vec<PackedConv>,
     detector: Vec<PackedConv>,
     descriptor: Vec<PackedConv>,
     cell: usize,
-    /// One per convolution, in the order encoder, detector, descriptor.
-    scratch: Mutex<Vec<Scratch>>,
+    /// Free sets of buffers, one buffer per convolution in the order encoder, detector,
+    /// descriptor.
+    scratch: Mutex<Vec<Vec<Scratch>>>,
 }
 
 /// Runs `convs` one after the other, each in its own `scratch`.
@@ -57,7 +60,7 @@ impl PackedFpfdcnn {
             detector: vec![elu(6)?, PackedConv::new(l[7], Activation::Sigmoid)?],
             descriptor: vec![elu(8)?, PackedConv::new(l[9], Activation::Identity)?],
             cell: model.cell(),
-            scratch: Mutex::new((0..10).map(|_| Scratch::default()).collect()),
+            scratch: Mutex::new(Vec::new()),
         })
     }
 
@@ -76,7 +79,6 @@ impl PackedFpfdcnn {
                 cell,
             });
         }
-        let err = |e: PackError| FpfdcnnError::Data(e.to_string());
         let x = NhwcView {
             h,
             w,
@@ -84,22 +86,24 @@ impl PackedFpfdcnn {
             stride: w,
             data: image,
         };
-        // The shared buffers when free; fresh ones when another call holds them (a caller on
-        // a rayon worker could otherwise wait on itself). A panic while holding the lock
-        // leaves only buffers behind: they are reused.
-        let mut own = Vec::new();
-        let mut guard = match self.scratch.try_lock() {
-            Ok(g) => Some(g),
-            Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
-            Err(std::sync::TryLockError::WouldBlock) => None,
-        };
-        let buffers: &mut [Scratch] = match guard.as_deref_mut() {
-            Some(shared) => shared,
-            None => {
-                own.resize_with(self.layers(), Scratch::default);
-                &mut own
-            }
-        };
+        // A free set of buffers, or a new one when every set is in use (one set per thread
+        // that runs the network at once). A panic while holding the lock leaves only buffers
+        // behind: they are reused.
+        let pool = || self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        let mut buffers = pool().pop().unwrap_or_default();
+        buffers.resize_with(self.layers(), Scratch::default);
+        let result = self.forward_in(x, [h, w], &mut buffers);
+        pool().push(buffers);
+        result
+    }
+
+    fn forward_in(
+        &self,
+        x: NhwcView<'_>,
+        [h, w]: [usize; 2],
+        buffers: &mut [Scratch],
+    ) -> Result<PackedOutput, FpfdcnnError> {
+        let (cell, err) = (self.cell, |e: PackError| FpfdcnnError::Data(e.to_string()));
         let (encoder, heads) = buffers.split_at_mut(self.encoder.len());
         let (detector, descriptor) = heads.split_at_mut(self.detector.len());
         let x = chain(&self.encoder, x, encoder).map_err(err)?;

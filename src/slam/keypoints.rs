@@ -57,7 +57,7 @@ pub fn similarity(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// A keypoint detector and descriptor.
-pub trait KeypointSource: Send {
+pub trait KeypointSource: Send + Sync {
     /// Short name for reports (`orb`, `fpfdcnn`).
     fn name(&self) -> &'static str;
     /// Keypoints and descriptors of a grey image.

@@ -30,6 +30,7 @@ pub mod multiview_depth;
 pub mod output;
 pub mod ply;
 pub mod pose_graph;
+pub mod prefetch;
 pub mod report;
 pub mod semantic_map;
 pub mod semantic_source;

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, sync_channel};
 use std::sync::{Arc, RwLock};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// Where depth comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -58,7 +58,11 @@ pub struct StageTime {
 
 impl StageTime {
     pub fn add(&mut self, since: Instant) {
-        self.seconds += since.elapsed().as_secs_f64();
+        self.add_duration(since.elapsed());
+    }
+
+    pub fn add_duration(&mut self, d: Duration) {
+        self.seconds += d.as_secs_f64();
         self.calls += 1;
     }
 
@@ -260,13 +264,47 @@ struct TrackingRun {
     interrupted: bool,
 }
 
+/// A frame loaded and its keypoints detected, with the time each took.
+struct Prepared {
+    frame: Result<Loaded>,
+    /// `None` when the frame could not be loaded.
+    features: Option<Result<super::keypoints::KeyFeatures>>,
+    load: Duration,
+    detect: Duration,
+}
+
+fn prepare(
+    seq: &TumSequence,
+    i: usize,
+    monocular: bool,
+    keypoints: &dyn KeypointSource,
+) -> Prepared {
+    let t = Instant::now();
+    let frame = load(seq, i, monocular);
+    let load = t.elapsed();
+    let t = Instant::now();
+    let features = frame
+        .as_ref()
+        .ok()
+        .map(|f| keypoints.detect(&rgb_to_gray(&f.rgb)));
+    Prepared {
+        frame,
+        features,
+        load,
+        detect: t.elapsed(),
+    }
+}
+
 /// The tracking stage over the frames: load, features, track; keyframes go to
 /// `on_keyframe` (which may answer with predicted-depth 3D points), frames to
-/// `on_frame`.
+/// `on_frame`. With `workers` > 0, frames are loaded and their keypoints detected on that
+/// many threads ahead of tracking ([`super::prefetch`]); with 0, on this thread before each
+/// is tracked. Either way each frame is tracked with the same features.
 fn tracking_loop(
     frames: &Frames,
     tracker: Tracker,
     keypoints: &dyn KeypointSource,
+    workers: usize,
     mut on_keyframe: impl FnMut(MapperInput) -> Option<Arc<KeyframeFeatures>>,
     mut on_frame: impl FnMut(&FrameRecord, Progress),
 ) -> TrackingRun {
@@ -286,33 +324,32 @@ fn tracking_loop(
         tracking: StageTime::default(),
         interrupted: false,
     };
-    let tracker = &mut run.tracker;
-    for i in 0..n {
+    let mut track = |i: usize, p: Prepared| -> bool {
         if stop.load(Ordering::SeqCst) {
             run.interrupted = true;
-            break;
+            return false;
         }
-        let t = Instant::now();
-        let frame = match load(seq, i, monocular) {
+        let frame = match p.frame {
             Ok(f) => f,
             Err(e) => {
                 log(&format!("warning: frame {i} skipped: {e}"));
                 run.skipped.push((i, e.to_string()));
-                continue;
+                return true;
             }
         };
-        run.load.add(t);
-        let t = Instant::now();
-        let features = match keypoints.detect(&rgb_to_gray(&frame.rgb)) {
-            Ok(f) => f,
-            Err(e) => {
+        run.load.add_duration(p.load);
+        let features = match p.features {
+            Some(Ok(f)) => f,
+            Some(Err(e)) => {
                 log(&format!(
                     "warning: frame {i}: keypoints failed ({e}); no features"
                 ));
                 Default::default()
             }
+            None => Default::default(),
         };
-        run.features.add(t);
+        run.features.add_duration(p.detect);
+        let tracker = &mut run.tracker;
         let t = Instant::now();
         let out = tracker.track(TrackInput {
             index: i,
@@ -344,7 +381,25 @@ fn tracking_loop(
         };
         on_frame(&out.record, progress);
         run.frames.push(out.record);
+        true
+    };
+    let produce = |i: usize| prepare(seq, i, monocular, keypoints);
+    let mut stopped = false;
+    if workers == 0 {
+        for i in 0..n {
+            // Checked before loading too: a stop request skips the frame's work.
+            if stop.load(Ordering::SeqCst) {
+                stopped = true;
+                break;
+            }
+            if !track(i, produce(i)) {
+                break;
+            }
+        }
+    } else {
+        super::prefetch::ordered_map(n, workers, produce, &mut track);
     }
+    run.interrupted |= stopped;
     run
 }
 
@@ -460,7 +515,8 @@ impl Slam {
             }
         };
         let (mut run, mut mapper, mut correction) = if config.system.threads {
-            run_threaded(&frames, stages, &map, config.system.queue, &mut notify)?
+            let (queue, workers) = (config.system.queue, config.system.feature_workers);
+            run_threaded(&frames, stages, &map, queue, workers, &mut notify)?
         } else {
             run_in_order(&frames, stages, &map, &mut notify)
         };
@@ -592,13 +648,15 @@ impl CorrectionStage {
     }
 }
 
-/// Tracking, mapping and correction as three threads passing messages; frame events
-/// reach `notify` on the calling thread.
+/// Tracking, mapping and correction as three threads passing messages, with frames
+/// prepared by `workers` threads ahead of tracking; frame events reach `notify` on the
+/// calling thread.
 fn run_threaded(
     frames: &Frames,
     stages: Stages,
     map: &SharedMap,
     queue: usize,
+    workers: usize,
     notify: &mut impl FnMut(&FrameRecord, Progress),
 ) -> Result<(TrackingRun, LocalMapper, CorrectionStage)> {
     let Stages {
@@ -640,6 +698,7 @@ fn run_threaded(
                 frames,
                 tracker,
                 keypoints.as_ref(),
+                workers,
                 |input| {
                     kf_tx.send(input).ok()?;
                     if monocular {
@@ -681,6 +740,7 @@ fn run_in_order(
         frames,
         tracker,
         keypoints.as_ref(),
+        0,
         |input| {
             let id = input.keyframe.id;
             let track = mapper.process(input);

@@ -620,6 +620,10 @@ pub struct SystemConfig {
     pub threads: bool,
     /// Capacity of the channels between threads (back-pressure on tracking).
     pub queue: usize,
+    /// With `threads`: threads that load frames and detect their keypoints ahead of
+    /// tracking, each running the keypoint network on its share of the cores (0: on the
+    /// tracking thread, the network on all cores).
+    pub feature_workers: usize,
     /// Distance from the true surface within which a map point counts as
     /// correctly placed (Table 11 "position accuracy"), metres.
     pub position_tolerance: f64,
@@ -632,6 +636,7 @@ impl Default for SystemConfig {
         SystemConfig {
             threads: true,
             queue: 8,
+            feature_workers: 2,
             position_tolerance: 0.05,
             max_eval_points: 200_000,
         }
@@ -700,6 +705,7 @@ mod tests {
             ("features", "top_k", "100000000"),
             ("pnp", "max_iterations", "0"),
             ("system", "queue", "0"),
+            ("system", "feature_workers", "17"),
             ("map", "min_views", "0"),
             ("multiview", "steps", "100000000"),
             ("multiview", "range", "nan"),

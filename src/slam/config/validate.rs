@@ -96,6 +96,7 @@ impl SlamConfig {
             "correction.optimise_every",
         )?;
         count(self.system.queue, 1, 1024, "system.queue")?;
+        count(self.system.feature_workers, 0, 16, "system.feature_workers")?;
         count(
             self.system.max_eval_points,
             1,

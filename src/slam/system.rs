@@ -499,6 +499,7 @@ impl Slam {
             correction: CorrectionStage::new(
                 Corrector::new(config.clone(), camera.clone()),
                 &config.correction,
+                monocular,
             ),
         };
         let frames = Frames {
@@ -609,7 +610,8 @@ struct Stages {
 /// Data correction's share of each keyframe, the same in both run orders: keyframe-pair
 /// constraints and, when `correction.optimise_online` is set, a pose-graph solve once a
 /// loop has closed since the last one and `correction.optimise_every` keyframes have
-/// passed.
+/// passed (RGB-D mode; monocular mode solves at every closed loop, since its multi-view
+/// depth is measured between keyframes placed by the corrections made so far).
 struct CorrectionStage {
     corrector: Corrector,
     online: bool,
@@ -622,11 +624,15 @@ struct CorrectionStage {
 }
 
 impl CorrectionStage {
-    fn new(corrector: Corrector, cfg: &CorrectionConfig) -> Self {
+    fn new(corrector: Corrector, cfg: &CorrectionConfig, monocular: bool) -> Self {
         CorrectionStage {
             corrector,
             online: cfg.optimise_online,
-            every: cfg.optimise_every.max(1),
+            every: if monocular {
+                1
+            } else {
+                cfg.optimise_every.max(1)
+            },
             since_solve: 0,
             loop_pending: false,
             time: StageTime::default(),
@@ -755,4 +761,22 @@ fn run_in_order(
 /// Frames with a given status.
 pub fn count_status(frames: &[FrameRecord], status: FrameStatus) -> usize {
     frames.iter().filter(|f| f.status == status).count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monocular_mode_solves_the_pose_graph_at_every_closed_loop() {
+        // Its multi-view depth is measured between keyframes placed by the online solves.
+        let cfg = SlamConfig::default();
+        let stage = |monocular| {
+            let corrector = Corrector::new(cfg.clone(), Camera::tum_fr1());
+            CorrectionStage::new(corrector, &cfg.correction, monocular).every
+        };
+        assert_eq!(stage(false), cfg.correction.optimise_every);
+        assert!(cfg.correction.optimise_every > 1);
+        assert_eq!(stage(true), 1);
+    }
 }

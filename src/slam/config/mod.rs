@@ -523,7 +523,9 @@ pub struct CorrectionConfig {
     pub optimise_online: bool,
     /// Online, at most one solve per this many keyframes (1: at every keyframe that closes
     /// a loop). Over long sequences nearly every keyframe closes one (proximity pairs), and
-    /// a solve costs more as the graph grows.
+    /// a solve costs more as the graph grows. RGB-D mode only: monocular mode solves at
+    /// every closed loop, because its multi-view depth (and so its map) is measured between
+    /// keyframes placed by the corrections made so far.
     pub optimise_every: usize,
     /// Local correction on/off.
     pub local: bool,

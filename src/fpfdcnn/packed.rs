@@ -86,9 +86,9 @@ impl PackedFpfdcnn {
             stride: w,
             data: image,
         };
-        // A free set of buffers, or a new one when every set is in use (one set per thread
-        // that runs the network at once). A panic while holding the lock leaves only buffers
-        // behind: they are reused.
+        // A free set of buffers, or a new one when every set is in use: the pool keeps one
+        // set per thread that ran the network at once (the lock is held only to take and
+        // return a set; a call that panics drops its set).
         let pool = || self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let mut buffers = pool().pop().unwrap_or_default();
         buffers.resize_with(self.layers(), Scratch::default);

@@ -71,8 +71,8 @@ pub struct PackedConv {
     weight: Vec<f32>,
     bias: Vec<f32>,
     activation: Activation,
-    /// The same kernels for Winograd's algorithm (2×2 and 3×3 after space-to-depth, unless
-    /// the input has too few channels for the transforms to pay).
+    /// The same kernels for Winograd's algorithm: 3×3 at stride 1 and 2×2 (stride 2 after
+    /// space-to-depth), unless the input has too few channels for the transforms to pay.
     winograd: Option<Winograd>,
 }
 
@@ -325,9 +325,9 @@ impl PackedConv {
         if odd || hp < self.k * self.stride || wp < self.k * self.stride {
             return Err(PackError::Size { h: x.h, w: x.w });
         }
-        // The source of the stride-1 k×k "valid" convolution, with k spare pixels at the end
-        // (the wide output's last rows read past the image). Only its interior is written
-        // below, so its border stays zero from one call to the next.
+        // The source of the stride-1 k×k "valid" convolution (after space-to-depth at
+        // stride 2). Only its interior is written below, so its border stays zero from one
+        // call to the next.
         let (sh, sw) = if self.stride == 2 {
             (hp / 2, wp / 2)
         } else {
@@ -359,6 +359,8 @@ impl PackedConv {
                 data: &scratch.wide,
             });
         }
+        // Directly: k spare pixels at the end (the wide output's last rows read past the
+        // image).
         let layout = [x.h, x.w, x.c, self.k, self.stride, p, 0];
         if scratch.layout != Some(layout) {
             scratch.src.clear();

@@ -64,7 +64,7 @@ impl Winograd {
     /// `(ky, kx)` a row-major `[c, cout]` matrix at `((ky·k + kx)·c)·cout`. `None` for other
     /// kernel sizes.
     pub fn new(weight: &[f32], k: usize, c: usize, cout: usize) -> Option<Self> {
-        if !(k == 2 || k == 3) || weight.len() != k * k * c * cout {
+        if !(k == 2 || k == 3) || c == 0 || cout == 0 || weight.len() != k * k * c * cout {
             return None;
         }
         let g = |i: usize, t: usize| -> f32 { if k == 3 { G3[i][t] } else { G2[i][t] } };
@@ -128,8 +128,9 @@ impl Winograd {
             return;
         }
         let (ty, tx) = (oh.div_ceil(m), ow.div_ceil(m));
-        // Bands of whole tile rows: about BAND_TILES tiles each, and at least four bands per
-        // thread where the image allows it (the last band of an uneven split is the short one).
+        // Bands of whole tile rows: about BAND_TILES tiles each (at least one tile row), and
+        // about four bands per thread where the image allows it (the last band of an uneven
+        // split is the short one).
         let threads = rayon::current_num_threads().max(1);
         let rows = BAND_TILES.div_ceil(tx).min(ty.div_ceil(4 * threads)).max(1);
         out.par_chunks_mut(rows * m * ow * cout)
@@ -438,6 +439,8 @@ mod tests {
         assert!(Winograd::new(&[0.0; 25], 5, 1, 1).is_none());
         assert!(Winograd::new(&[0.0; 1], 1, 1, 1).is_none());
         assert!(Winograd::new(&[0.0; 8], 3, 1, 1).is_none());
+        assert!(Winograd::new(&[], 3, 0, 4).is_none());
+        assert!(Winograd::new(&[], 3, 4, 0).is_none());
         assert_eq!(Winograd::new(&[0.0; 9], 3, 1, 1).unwrap().tile(), 2);
         assert_eq!(Winograd::new(&[0.0; 4], 2, 1, 1).unwrap().tile(), 3);
     }

@@ -64,6 +64,9 @@ pub fn ordered_map<T: Send>(
     };
     let (shared, produce) = (&shared, &produce);
     std::thread::scope(|s| {
+        // Before the workers start: whichever way this thread leaves (a worker that could
+        // not be spawned included), the others are told to stop.
+        let _finish = Finish(shared);
         let (tx, rx) = channel::<(usize, std::thread::Result<T>)>();
         for _ in 0..workers {
             let tx = tx.clone();
@@ -98,7 +101,6 @@ pub fn ordered_map<T: Send>(
             });
         }
         drop(tx);
-        let _finish = Finish(shared);
         let mut pending = BTreeMap::new();
         let mut want = 0;
         for (i, item) in rx {

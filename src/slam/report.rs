@@ -106,6 +106,10 @@ pub struct Report {
     pub features: String,
     pub labels: String,
     pub threads: bool,
+    /// Threads that loaded frames and detected keypoints ahead of tracking (0: tracking
+    /// did it); the `features` stage time is summed over them.
+    #[serde(default)]
+    pub feature_workers: usize,
     pub frames_requested: usize,
     pub frames_processed: usize,
     pub frames_skipped: Vec<(usize, String)>,
@@ -179,6 +183,7 @@ impl Report {
             features: out.keypoint_source.into(),
             labels: out.semantic_source.into(),
             threads: out.threads,
+            feature_workers: out.feature_workers,
             frames_requested: out.total_frames,
             frames_processed: out.frames.len(),
             frames_skipped: out.skipped.clone(),
@@ -397,6 +402,14 @@ impl Report {
                 t.stage, t.seconds, t.calls, t.per_second
             );
         }
+        if self.feature_workers > 1 {
+            let _ = writeln!(
+                s,
+                "\nThe features stage's time is summed over {} workers that prepared frames \
+                 ahead of tracking.",
+                self.feature_workers
+            );
+        }
         let _ = writeln!(s, "\n## Map labels\n\n| class | points |\n|---|---|");
         for l in &self.label_histogram {
             let _ = writeln!(s, "| {} | {} |", l.name, l.points);
@@ -489,6 +502,13 @@ impl Report {
                 s,
                 "  {:<13} {:>8.2} s  {:>5} calls  {:>8.2} /s",
                 t.stage, t.seconds, t.calls, t.per_second
+            );
+        }
+        if self.feature_workers > 1 {
+            let _ = writeln!(
+                s,
+                "  (features: time summed over {} workers preparing frames ahead of tracking)",
+                self.feature_workers
             );
         }
         if let Some(a) = &self.ate {

@@ -183,6 +183,8 @@ pub struct SlamOutput {
     /// Frames the run was asked to process.
     pub total_frames: usize,
     pub threads: bool,
+    /// Threads that prepared frames ahead of tracking (0: tracking did it).
+    pub feature_workers: usize,
     pub depth: DepthMode,
     pub keypoint_source: &'static str,
     pub semantic_source: &'static str,
@@ -299,7 +301,9 @@ fn prepare(
 /// `on_keyframe` (which may answer with predicted-depth 3D points), frames to
 /// `on_frame`. With `workers` > 0, frames are loaded and their keypoints detected on that
 /// many threads ahead of tracking ([`super::prefetch`]); with 0, on this thread before each
-/// is tracked. Either way each frame is tracked with the same features.
+/// is tracked. Either way each frame is tracked with the same features (the real sequences
+/// of the README give byte-identical trajectories). With workers, the `load` and `features`
+/// times are each worker's, summed: they overlap tracking and each other.
 fn tracking_loop(
     frames: &Frames,
     tracker: Tracker,
@@ -583,6 +587,11 @@ impl Slam {
             interrupted: run.interrupted,
             total_frames: n,
             threads: config.system.threads,
+            feature_workers: if config.system.threads {
+                config.system.feature_workers
+            } else {
+                0
+            },
             depth,
             keypoint_source,
             semantic_source,

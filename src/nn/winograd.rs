@@ -192,11 +192,7 @@ impl Winograd {
                             } else {
                                 (&mut y[..], m * cout)
                             };
-                            if m == 2 {
-                                output_f2(p, at, step, bias, dst, stride, tmp);
-                            } else {
-                                output_f3(p, at, step, bias, dst, stride, tmp);
-                            }
+                            output(m, p, at, step, bias, dst, stride, tmp);
                             if h < m || w < m {
                                 for i in 0..h {
                                     band_out[((oy + i) * ow + ox) * cout..][..w * cout]
@@ -320,9 +316,10 @@ fn output_tile<const M: usize>(
 }
 
 simd_fn! {
-    /// [`output_tile`] of F(2×2, 3×3).
+    /// [`output_tile`] of F(2×2, 3×3) (`m` = 2) or F(3×3, 2×2) (`m` = 3).
     #[allow(clippy::too_many_arguments)]
-    fn output_f2(
+    fn output(
+        m: usize,
         p: &[f32],
         at: usize,
         step: usize,
@@ -331,23 +328,11 @@ simd_fn! {
         stride: usize,
         tmp: &mut [f32],
     ) {
-        output_tile::<2>(p, at, step, bias, y, stride, tmp, at2)
-    }
-}
-
-simd_fn! {
-    /// [`output_tile`] of F(3×3, 2×2).
-    #[allow(clippy::too_many_arguments)]
-    fn output_f3(
-        p: &[f32],
-        at: usize,
-        step: usize,
-        bias: &[f32],
-        y: &mut [f32],
-        stride: usize,
-        tmp: &mut [f32],
-    ) {
-        output_tile::<3>(p, at, step, bias, y, stride, tmp, at3)
+        if m == 2 {
+            output_tile::<2>(p, at, step, bias, y, stride, tmp, at2)
+        } else {
+            output_tile::<3>(p, at, step, bias, y, stride, tmp, at3)
+        }
     }
 }
 

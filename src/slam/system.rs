@@ -266,11 +266,9 @@ struct TrackingRun {
     interrupted: bool,
 }
 
-/// A frame loaded and its keypoints detected, with the time each took.
+/// A frame loaded and its keypoints detected (or why not), with the time each took.
 struct Prepared {
-    frame: Result<Loaded>,
-    /// `None` when the frame could not be loaded.
-    features: Option<Result<super::keypoints::KeyFeatures>>,
+    frame: Result<(Loaded, Result<super::keypoints::KeyFeatures>)>,
     load: Duration,
     detect: Duration,
 }
@@ -285,13 +283,12 @@ fn prepare(
     let frame = load(seq, i, monocular);
     let load = t.elapsed();
     let t = Instant::now();
-    let features = frame
-        .as_ref()
-        .ok()
-        .map(|f| keypoints.detect(&rgb_to_gray(&f.rgb)));
+    let frame = frame.map(|f| {
+        let features = keypoints.detect(&rgb_to_gray(&f.rgb));
+        (f, features)
+    });
     Prepared {
         frame,
-        features,
         load,
         detect: t.elapsed(),
     }
@@ -333,7 +330,7 @@ fn tracking_loop(
             run.interrupted = true;
             return false;
         }
-        let frame = match p.frame {
+        let (frame, features) = match p.frame {
             Ok(f) => f,
             Err(e) => {
                 log(&format!("warning: frame {i} skipped: {e}"));
@@ -342,16 +339,12 @@ fn tracking_loop(
             }
         };
         run.load.add_duration(p.load);
-        let features = match p.features {
-            Some(Ok(f)) => f,
-            Some(Err(e)) => {
-                log(&format!(
-                    "warning: frame {i}: keypoints failed ({e}); no features"
-                ));
-                Default::default()
-            }
-            None => Default::default(),
-        };
+        let features = features.unwrap_or_else(|e| {
+            log(&format!(
+                "warning: frame {i}: keypoints failed ({e}); no features"
+            ));
+            Default::default()
+        });
         run.features.add_duration(p.detect);
         let tracker = &mut run.tracker;
         let t = Instant::now();

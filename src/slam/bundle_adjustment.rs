@@ -19,8 +19,9 @@
 //! is small (tens of poses, thousands of points).
 
 use super::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
+use super::depth_alignment::sqrt_information;
 use super::map::Map;
-use super::pose_graph::{Edge, EdgeTerms, edge_terms, robust, se3_exp, skew};
+use super::pose_graph::{Edge, EdgeTerms, edge_terms, robust, se3_exp, se3_log, skew};
 use super::tracking::FrameRecord;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};
@@ -623,6 +624,7 @@ pub fn refine_frames(
         bf: if monocular { 0.0 } else { b.depth_bf },
     };
     let (min_depth, max_depth) = (cfg.tracking.min_depth, cfg.tracking.max_depth);
+    let dense_sqrt_info = sqrt_information(&cfg.dense);
     let mut refined = 0;
     for f in frames.iter_mut() {
         let Some((k, kf)) = f
@@ -661,7 +663,8 @@ pub fn refine_frames(
             continue;
         }
         let start = kf.pose * f.relative;
-        if let Some(pose) = refine_pose(start, points, scales, b) {
+        let prior = (f.dense && !monocular).then_some((start, dense_sqrt_info));
+        if let Some(pose) = refine_pose(start, points, prior, scales, b) {
             f.relative = renormalized(&(kf.pose.inverse() * pose));
             refined += 1;
         }
@@ -670,13 +673,19 @@ pub fn refine_frames(
 }
 
 /// Gauss-Newton on one pose against fixed points, Huber-weighted; the observations beyond
-/// the χ² gate at the halfway pose are dropped. `None` if no step lowered the cost.
+/// the χ² gate at the halfway pose are dropped. `prior`: a pose measured otherwise (the
+/// dense refinement's) with the square root of its diagonal information, a further term
+/// `‖W log(T_prior⁻¹ T)‖²`. `None` if no step lowered the cost.
 fn refine_pose(
     start: Pose,
     mut points: Vec<(Point3<f64>, Observation)>,
+    prior: Option<(Pose, Vector6<f64>)>,
     s: Scales,
     b: &BundleAdjustmentConfig,
 ) -> Option<Pose> {
+    let prior_residual = |pose: &Pose| {
+        prior.map(|(target, w)| se3_log(&(target.inverse() * pose)).component_mul(&w))
+    };
     let cost = |pose: &Pose, points: &[(Point3<f64>, Observation)]| -> f64 {
         points
             .iter()
@@ -684,7 +693,8 @@ fn refine_pose(
                 Some(r) => robust(RobustKernel::Huber, b.huber, r.r.norm_squared()).0,
                 None => b.outlier_chi2,
             })
-            .sum()
+            .sum::<f64>()
+            + prior_residual(pose).map_or(0.0, |r| r.norm_squared())
     };
     let mut pose = start;
     let mut current = cost(&pose, &points);
@@ -705,6 +715,12 @@ fn refine_pose(
                     h += r.j_pose.transpose() * r.j_pose * w;
                     g -= r.j_pose.transpose() * r.r * w;
                 }
+            }
+            // Right perturbation: log(T_p⁻¹ T exp(δ)) ≈ log(T_p⁻¹ T) + δ near the prior.
+            if let (Some(r), Some((_, w))) = (prior_residual(&pose), prior) {
+                let j = Matrix6::from_diagonal(&w);
+                h += j.transpose() * j;
+                g -= j.transpose() * r;
             }
             let Some(dx) = h.cholesky().map(|c| c.solve(&g)) else {
                 break;
@@ -934,12 +950,31 @@ mod tests {
         assert!(points.len() > 50);
         points[0].1.normalized.y += 30.0 / camera.fy;
         let start = truth[2] * se3_exp(&Vector6::new(0.03, -0.02, 0.01, 0.01, 0.02, -0.01));
-        let pose = refine_pose(start, points.clone(), s, &b).expect("a step lowers the cost");
+        let pose = refine_pose(start, points.clone(), None, s, &b).expect("a step lowers the cost");
         let err = se3_log(&(pose.inverse() * truth[2])).norm();
         assert!(err < 1e-6, "{err}");
         // From the truth itself no step lowers the cost beyond rounding.
-        if let Some(p) = refine_pose(truth[2], points, s, &b) {
+        if let Some(p) = refine_pose(truth[2], points.clone(), None, s, &b) {
             assert!(se3_log(&(p.inverse() * truth[2])).norm() < 1e-9);
         }
+        // A prior (the dense refinement's pose) 1 cm off the truth: a weak one moves the
+        // result a little, a strong one close to itself, and each lies between the two.
+        let offset = truth[2] * se3_exp(&Vector6::new(0.01, 0.0, 0.0, 0.0, 0.0, 0.0));
+        let off_by = |p: &Pose| {
+            let e = se3_log(&(truth[2].inverse() * p));
+            (e[0], e.fixed_rows::<5>(1).norm())
+        };
+        let with = |sigma: f64| {
+            let w = Vector6::repeat(1.0 / sigma);
+            refine_pose(start, points.clone(), Some((offset, w)), s, &b).expect("refined")
+        };
+        let (weak, _) = off_by(&with(0.01));
+        let (strong, strong_rest) = off_by(&with(1e-5));
+        assert!(weak > 1e-5 && weak < 0.005, "weak prior: {weak}");
+        assert!(
+            strong > 0.0099 && strong <= 0.01 + 1e-9,
+            "strong prior: {strong}"
+        );
+        assert!(strong_rest < 1e-4, "{strong_rest}");
     }
 }

@@ -64,6 +64,9 @@ pub struct Corrector {
     cfg: SlamConfig,
     camera: Camera,
     pub stats: CorrectionStats,
+    /// Edges from outside the keypoints (dense keyframe alignment), joined to the
+    /// constraints' edges in every later solve.
+    extra_edges: Vec<Edge>,
 }
 
 impl Corrector {
@@ -72,7 +75,13 @@ impl Corrector {
             cfg,
             camera,
             stats: CorrectionStats::default(),
+            extra_edges: Vec::new(),
         }
+    }
+
+    /// Edges that later solves (pose graph and bundle adjustment) add to the constraints'.
+    pub fn set_extra_edges(&mut self, edges: Vec<Edge>) {
+        self.extra_edges = edges;
     }
 
     /// Links keyframe `k` (already in the map) to earlier ones. Returns whether
@@ -206,7 +215,8 @@ impl Corrector {
             let m = read(map);
             // Keyframes the corrector has processed (later ones have no edges yet).
             let n = m.constraints.iter().map(|c| c.b + 1).max().unwrap_or(0);
-            if m.loop_constraints() == 0 || n < 2 || n > m.keyframes.len() {
+            let extra = self.extra_edges.iter().any(|e| e.j < n);
+            if (m.loop_constraints() == 0 && !extra) || n < 2 || n > m.keyframes.len() {
                 return None;
             }
             let poses: Vec<Pose> = m.keyframes[..n].iter().map(|k| k.odom_pose).collect();
@@ -276,6 +286,7 @@ impl Corrector {
                     info
                 },
             })
+            .chain(self.extra_edges.iter().filter(|e| e.j < n).cloned())
             .collect()
     }
 }

@@ -11,33 +11,38 @@ use super::pose_graph::se3_exp;
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
-use nalgebra::{Matrix6, Point3, Vector3, Vector6};
+use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use std::sync::Arc;
 
-/// Whether `depth` has the size of `rays`' images (sampled at stride 1).
+/// Whether `depth` is sampled as `rays` is (the camera's image every `rays.stride` pixels:
+/// full resolution in tracking, a keyframe's fusion resolution between keyframes).
 fn fits(rays: &RayTable, depth: &DepthImage) -> bool {
-    rays.stride == 1 && (depth.width, depth.height) == (rays.width, rays.height)
+    (depth.width, depth.height) == (rays.width, rays.height)
 }
 
-/// A keyframe's depth as points and normals on a grid of every `step`-th pixel, in the
-/// keyframe's camera frame.
+/// A keyframe's depth as points and normals on a grid of every `step`-th sample of its depth
+/// image, in the keyframe's camera frame.
 pub struct DepthModel {
-    step: usize,
     width: usize,
     height: usize,
+    /// Point and normal, single precision (24 bytes a sample keeps the grid in cache);
     /// `None` where the depth is missing, out of range, or has no normal.
-    points: Vec<Option<(Vector3<f64>, Vector3<f64>)>>,
+    points: Vec<Option<[f32; 6]>>,
     camera: Camera,
     /// Where projecting is reliable (the distortion polynomial folds back beyond).
     bounds: ViewBounds,
+    /// No distortion: pixels from normalised coordinates directly.
+    pinhole: bool,
+    /// One over the grid's spacing in image pixels.
+    inv_cell: f64,
     rays: Arc<RayTable>,
 }
 
 impl DepthModel {
-    /// The points of `depth` every `step` pixels within `range` metres, with normals from
+    /// The points of `depth` every `step` samples within `range` metres, with normals from
     /// the neighbouring grid points (none across a depth jump of more than 5 % of the depth);
-    /// `None` when `depth` is not the size of `rays`' images (a table of `camera` at stride 1).
+    /// `None` when `depth` is not sampled as `rays` is (a table of `camera`).
     pub fn new(
         depth: &DepthImage,
         camera: &Camera,
@@ -83,36 +88,57 @@ impl DepthModel {
                 if n.dot(&p) > 0.0 {
                     n = -n;
                 }
-                points[gy * width + gx] = Some((p, n));
+                points[gy * width + gx] = Some([
+                    p.x as f32, p.y as f32, p.z as f32, n.x as f32, n.y as f32, n.z as f32,
+                ]);
             }
         }
         Some(DepthModel {
-            step,
             width,
             height,
             points,
             camera: camera.clone(),
             bounds: ViewBounds::new(camera),
+            pinhole: camera.distortion.is_zero(),
+            inv_cell: 1.0 / (step * rays.stride as usize) as f64,
             rays,
         })
     }
 
-    /// The model point and normal where `p` (keyframe camera frame) projects.
-    fn lookup(&self, p: &Vector3<f64>) -> Option<&(Vector3<f64>, Vector3<f64>)> {
-        let p = Point3::from(*p);
-        if !self.bounds.contains(&p) {
+    /// The model point and normal where `p` (keyframe camera frame) projects: the nearest
+    /// grid sample to its pixel.
+    #[inline]
+    fn lookup(&self, p: [f64; 3]) -> Option<&[f32; 6]> {
+        if p[2] <= 1e-6 {
             return None;
         }
-        let px = self.camera.project(&p)?;
-        let (gx, gy) = (
-            (px.x / self.step as f64).round(),
-            (px.y / self.step as f64).round(),
-        );
+        let (x, y) = (p[0] / p[2], p[1] / p[2]);
+        let b = &self.bounds;
+        if !(x > b.x.0 && x < b.x.1 && y > b.y.0 && y < b.y.1) {
+            return None;
+        }
+        let c = &self.camera;
+        let (u, v) = if self.pinhole {
+            (x, y)
+        } else {
+            let d = c.distortion.distort(Vector2::new(x, y));
+            (d.x, d.y)
+        };
+        // Rounded to the nearest sample (the `+ 0.5` and truncation of a non-negative value).
+        let gx = (c.fx * u + c.cx) * self.inv_cell + 0.5;
+        let gy = (c.fy * v + c.cy) * self.inv_cell + 0.5;
         if gx < 0.0 || gy < 0.0 || gx >= self.width as f64 || gy >= self.height as f64 {
             return None;
         }
         self.points[gy as usize * self.width + gx as usize].as_ref()
     }
+}
+
+/// The square root of a dense relative pose's information, `(ρ, φ)`: one over the
+/// standard deviations of `dense.sigma_*`.
+pub fn sqrt_information(d: &DenseConfig) -> Vector6<f64> {
+    let (t, r) = (d.sigma_translation, d.sigma_rotation_deg.to_radians());
+    Vector6::new(1.0 / t, 1.0 / t, 1.0 / t, 1.0 / r, 1.0 / r, 1.0 / r)
 }
 
 /// The outcome of [`align`].
@@ -130,8 +156,9 @@ pub struct Alignment {
 }
 
 /// Refines `initial` (`T_kf_frame`) by point-to-plane ICP of the frame's depth against
-/// `model`, one level per entry of `cfg.levels` (frame pixels sampled every `step`, pairs
-/// farther apart than `max_distance` dropped). `None` when `depth` is not the camera's size,
+/// `model`, one level per entry of `cfg.levels` (frame pixels sampled every `step` pixels of
+/// the camera's image, pairs farther apart than `max_distance` dropped). `depth` is sampled
+/// as the model's depth is. `None` when it is not,
 /// too few pairs remain, or the system is degenerate (a single plane leaves directions
 /// unconstrained; a near-degenerate one, a wall with a little clutter, is not caught here,
 /// and the caller's agreement with the keypoint pose bounds what it can do).
@@ -149,7 +176,7 @@ pub fn align(
     let mut pose = *initial;
     let mut last = None;
     for level in &cfg.levels {
-        let step = level.step.max(1);
+        let step = (level.step / rays.stride as usize).max(1);
         let source: Vec<Vector3<f64>> = (0..depth.height as usize)
             .step_by(step)
             .flat_map(|v| (0..depth.width as usize).step_by(step).map(move |u| (u, v)))
@@ -197,30 +224,67 @@ fn normal_equations(
     max_distance: f64,
     huber: f64,
 ) -> (Matrix6<f64>, Vector6<f64>, usize, f64) {
+    let max_sq = max_distance * max_distance;
+    let m = pose.rotation.to_rotation_matrix().into_inner();
+    let t = pose.translation.vector;
     let chunk = |points: &[Vector3<f64>]| {
-        let mut h = Matrix6::zeros();
+        // The upper triangle of JᵀWJ, row by row, summed as numbers (no 6x6 temporaries).
+        let mut upper = [0.0f64; 21];
         let mut g = Vector6::zeros();
         let (mut n_pairs, mut sq) = (0usize, 0.0);
         for s in points {
-            let p = (pose * Point3::from(*s)).coords;
-            let Some((q, n)) = model.lookup(&p) else {
+            let p = [
+                m[(0, 0)] * s.x + m[(0, 1)] * s.y + m[(0, 2)] * s.z + t.x,
+                m[(1, 0)] * s.x + m[(1, 1)] * s.y + m[(1, 2)] * s.z + t.y,
+                m[(2, 0)] * s.x + m[(2, 1)] * s.y + m[(2, 2)] * s.z + t.z,
+            ];
+            let Some(&[qx, qy, qz, nx, ny, nz]) = model.lookup(p) else {
                 continue;
             };
-            if (p - q).norm() > max_distance {
+            let n = [f64::from(nx), f64::from(ny), f64::from(nz)];
+            let d = [
+                p[0] - f64::from(qx),
+                p[1] - f64::from(qy),
+                p[2] - f64::from(qz),
+            ];
+            if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > max_sq {
                 continue;
             }
-            let r = n.dot(&(p - q));
+            let r = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
             let w = if r.abs() <= huber {
                 1.0
             } else {
                 huber / r.abs()
             };
-            let pn = p.cross(n);
-            let j = Vector6::new(n.x, n.y, n.z, pn.x, pn.y, pn.z);
-            h += w * j * j.transpose();
-            g += w * r * j;
+            // p × n
+            let j = [
+                n[0],
+                n[1],
+                n[2],
+                p[1] * n[2] - p[2] * n[1],
+                p[2] * n[0] - p[0] * n[2],
+                p[0] * n[1] - p[1] * n[0],
+            ];
+            let mut k = 0;
+            for a in 0..6 {
+                let wa = w * j[a];
+                for b in j.iter().skip(a) {
+                    upper[k] += wa * b;
+                    k += 1;
+                }
+                g[a] += wa * r;
+            }
             n_pairs += 1;
             sq += r * r;
+        }
+        let mut h = Matrix6::zeros();
+        let mut k = 0;
+        for a in 0..6 {
+            for b in a..6 {
+                h[(a, b)] = upper[k];
+                h[(b, a)] = upper[k];
+                k += 1;
+            }
         }
         (h, g, n_pairs, sq)
     };
@@ -232,14 +296,14 @@ fn normal_equations(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::slam::config::DenseConfig;
     use nalgebra::{Point2, Translation3, UnitQuaternion};
 
     /// Depth of a box room seen from `pose` (world from camera): floor, walls, and a block,
     /// so that every direction is constrained.
-    fn render(camera: &Camera, pose: &Pose) -> DepthImage {
+    pub(crate) fn render(camera: &Camera, pose: &Pose) -> DepthImage {
         let (w, h) = (camera.width, camera.height);
         let mut depth = DepthImage::new(w, h);
         // Planes n·x = d in the world frame.
@@ -291,9 +355,16 @@ mod tests {
         let kf_depth = render(&camera, &kf_pose);
         let frame_depth = render(&camera, &frame_pose);
         let range = (0.1, 6.0);
-        // A 160x120 image has 300 points at the coarsest level.
+        // A 160x120 image has 300 points at the coarsest level; a third, finer level (every
+        // 2nd pixel) for precision.
+        let mut levels = DenseConfig::default().levels;
+        levels.push(crate::slam::config::DenseLevel {
+            step: 2,
+            max_distance: 0.02,
+        });
         let cfg = DenseConfig {
             min_pairs: 100,
+            levels,
             ..DenseConfig::default()
         };
         let rays = Arc::new(RayTable::new(&camera, 1));
@@ -312,6 +383,44 @@ mod tests {
             a.inliers
         );
         assert!(a.inliers > a.points / 2, "{} of {}", a.inliers, a.points);
+    }
+
+    #[test]
+    fn aligns_depth_sampled_every_second_pixel() {
+        // A keyframe's depth at the fusion resolution: the camera's image every 2nd pixel,
+        // with a ray table of the same stride; levels keep counting full-image pixels.
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let frame_pose = Pose::from_parts(
+            Translation3::new(-0.02, 0.01, 0.04),
+            UnitQuaternion::from_euler_angles(-0.01, 0.02, 0.015),
+        );
+        let sub = |d: &DepthImage| {
+            crate::slam::map::KeyframeView::new(
+                2,
+                &image::RgbImage::new(d.width, d.height),
+                d,
+                &crate::dataset::LabelImage::new(d.width, d.height, 0),
+            )
+            .depth
+        };
+        let kf_depth = sub(&render(&camera, &Pose::identity()));
+        let frame_depth = sub(&render(&camera, &frame_pose));
+        let range = (0.1, 6.0);
+        let cfg = DenseConfig {
+            min_pairs: 100,
+            ..DenseConfig::default()
+        };
+        let rays = Arc::new(RayTable::new(&camera, 2));
+        let model = DepthModel::new(&kf_depth, &camera, rays, 1, range).expect("stride 2");
+        let a = align(&model, &frame_depth, &Pose::identity(), range, &cfg).expect("aligned");
+        let err = frame_pose.inverse() * a.pose;
+        assert!(
+            err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
+            "error {err:?}"
+        );
+        // Full-resolution depth against the stride-2 model is not the same sampling.
+        let full = render(&camera, &frame_pose);
+        assert!(align(&model, &full, &Pose::identity(), range, &cfg).is_none());
     }
 
     #[test]

@@ -23,6 +23,7 @@ pub mod correction;
 pub mod depth_alignment;
 pub mod depth_edges;
 pub mod evaluation;
+pub mod keyframe_alignment;
 pub mod keypoints;
 pub mod local_mapper;
 pub mod map;

@@ -136,6 +136,9 @@ pub struct Report {
     /// The final bundle adjustment (`None`: off).
     #[serde(default)]
     pub bundle_adjustment: Option<super::bundle_adjustment::BaSummary>,
+    /// Dense keyframe-to-keyframe edges (`None`: off).
+    #[serde(default)]
+    pub keyframe_alignment: Option<super::keyframe_alignment::KeyframeAlignmentSummary>,
     /// Multi-view depth of monocular keyframes (zero in RGB-D mode).
     #[serde(default)]
     pub multiview: super::multiview_depth::SweepSummary,
@@ -228,6 +231,7 @@ impl Report {
             correction: out.correction.clone(),
             local_correction: out.local.clone(),
             bundle_adjustment: out.adjustment,
+            keyframe_alignment: out.keyframe_alignment.clone(),
             multiview: out.multiview,
             outputs: Vec::new(),
         }
@@ -431,6 +435,16 @@ impl Report {
             self.local_correction.min_scale,
             self.local_correction.max_scale
         );
+        if let Some(k) = &self.keyframe_alignment {
+            let _ = writeln!(
+                s,
+                "\nKeyframe alignment (depth ICP between keyframes): {} of {} keyframe pairs became edges of the final pose graph and bundle adjustment (median correction of tracking's relative pose {:.1} mm), {:.3} s.",
+                k.edges,
+                k.pairs,
+                k.median_correction * 1000.0,
+                k.seconds
+            );
+        }
         if let Some(b) = &self.bundle_adjustment {
             let _ = writeln!(
                 s,

@@ -9,6 +9,7 @@
 use super::bundle_adjustment::{BaSummary, refine_frames};
 use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
+use super::keyframe_alignment::{KeyframeAlignmentSummary, keyframe_edges};
 use super::keypoints::KeypointSource;
 use super::local_mapper::{LocalMapper, MapperInput};
 use super::map::{KeyframeFeatures, Map, SharedMap, read, write};
@@ -169,6 +170,8 @@ pub struct SlamOutput {
     pub local: LocalSummary,
     /// The final bundle adjustment (`None`: off).
     pub adjustment: Option<BaSummary>,
+    /// Dense keyframe-to-keyframe edges (RGB-D, `dense.keyframe_edges` > 0).
+    pub keyframe_alignment: Option<KeyframeAlignmentSummary>,
     /// Multi-view depth of monocular keyframes, summed over keyframes.
     pub multiview: SweepSummary,
     pub tracking: TrackingCounters,
@@ -529,6 +532,11 @@ impl Slam {
         };
         // Final correction from all constraints, local correction, re-fusion.
         let t = Instant::now();
+        let keyframe_alignment = (!monocular && config.dense.keyframe_edges > 0).then(|| {
+            let (edges, summary) = keyframe_edges(&read(&map), &camera, &config);
+            correction.corrector.set_extra_edges(edges);
+            summary
+        });
         correction.corrector.optimise(&map);
         let adjustment =
             correction
@@ -570,6 +578,7 @@ impl Slam {
             landmarks,
             local,
             adjustment,
+            keyframe_alignment,
             multiview,
             tracking: run.tracker.counters.clone(),
             correction: correction.corrector.stats,

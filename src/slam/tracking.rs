@@ -61,6 +61,9 @@ pub struct FrameRecord {
     /// The PnP inliers against the reference keyframe (empty for keyframes and lost
     /// frames), for the frame's refinement after bundle adjustment.
     pub observations: Vec<FrameObservation>,
+    /// `relative` came from the dense refinement against the reference keyframe's depth
+    /// (RGB-D, `dense.enabled`): the refinement after bundle adjustment keeps it as a prior.
+    pub dense: bool,
 }
 
 /// A tracked frame's PnP inlier against its reference keyframe.
@@ -291,8 +294,10 @@ impl Tracker {
         self.lost_streak = 0;
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
+        let mut dense = false;
         if let Some(refined) = self.refine_dense(&input, reference_now, &pose) {
             pose = refined;
+            dense = true;
         }
         // The PnP inliers against the reference keyframe: they decide on a new keyframe
         // and, kept in the frame's record, refine it after bundle adjustment.
@@ -361,6 +366,7 @@ impl Tracker {
             inliers,
             correspondences: corr.world.len(),
             observations,
+            dense,
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -410,6 +416,7 @@ impl Tracker {
                     inliers: 0,
                     correspondences: 0,
                     observations: Vec::new(),
+                    dense: false,
                 },
                 keyframe: None,
                 events,
@@ -466,6 +473,7 @@ impl Tracker {
             inliers: 0,
             correspondences: 0,
             observations: Vec::new(),
+            dense: false,
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -549,6 +557,7 @@ impl Tracker {
             inliers: 0,
             correspondences: 0,
             observations: Vec::new(),
+            dense: false,
         };
         // Keep the last good frame for matching; only its pose moves on.
         if let Some(last) = &mut self.last {

@@ -277,6 +277,19 @@ pub struct DenseConfig {
     /// of the pose from the keypoints.
     pub agree_translation: f64,
     pub agree_rotation_deg: f64,
+    /// Keyframe-to-keyframe edges: each keyframe's depth (at the fusion resolution) is aligned
+    /// to this many preceding keyframes' by the same ICP, and each alignment that agrees with
+    /// tracking becomes a relative-pose edge of the pose graph and of bundle adjustment
+    /// ([`crate::slam::keyframe_alignment`]; 0: none, and in monocular mode never).
+    pub keyframe_edges: usize,
+    /// An alignment becomes an edge only when at least this share of the later keyframe's
+    /// sampled points is paired at the last level (misaligned pairs pair fewer).
+    pub edge_min_inlier_fraction: f64,
+    /// Standard deviations of a relative pose from the ICP, metres and degrees: of the
+    /// keyframe edges, and of the prior that keeps a refined frame's dense pose when the frame
+    /// is refined again after bundle adjustment.
+    pub sigma_translation: f64,
+    pub sigma_rotation_deg: f64,
 }
 
 /// One level of [`DenseConfig::levels`].
@@ -290,7 +303,7 @@ pub struct DenseLevel {
 impl Default for DenseConfig {
     fn default() -> Self {
         DenseConfig {
-            enabled: false,
+            enabled: true,
             model_step: 1,
             levels: vec![
                 DenseLevel {
@@ -299,11 +312,7 @@ impl Default for DenseConfig {
                 },
                 DenseLevel {
                     step: 4,
-                    max_distance: 0.05,
-                },
-                DenseLevel {
-                    step: 2,
-                    max_distance: 0.02,
+                    max_distance: 0.03,
                 },
             ],
             iterations: 10,
@@ -312,6 +321,10 @@ impl Default for DenseConfig {
             min_inlier_fraction: 0.3,
             agree_translation: 0.03,
             agree_rotation_deg: 2.0,
+            keyframe_edges: 2,
+            edge_min_inlier_fraction: 0.5,
+            sigma_translation: 0.002,
+            sigma_rotation_deg: 0.5,
         }
     }
 }

@@ -175,6 +175,15 @@ impl SlamConfig {
         }
         pos(d.agree_translation, "dense.agree_translation")?;
         pos(d.agree_rotation_deg, "dense.agree_rotation_deg")?;
+        count(d.keyframe_edges, 0, 16, "dense.keyframe_edges")?;
+        if !(0.0..=1.0).contains(&d.edge_min_inlier_fraction) {
+            return Err(format!(
+                "dense.edge_min_inlier_fraction must be in [0, 1], got {}",
+                d.edge_min_inlier_fraction
+            ));
+        }
+        pos(d.sigma_translation, "dense.sigma_translation")?;
+        pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         Ok(())
     }
 

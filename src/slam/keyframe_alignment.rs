@@ -1,0 +1,210 @@
+//! Depth between keyframes (RGB-D mode): each keyframe's depth image aligned to its
+//! predecessors' by the point-to-plane ICP of [`super::depth_alignment`], at the keyframes'
+//! fusion resolution. An alignment that pairs enough points and agrees with tracking's
+//! relative pose becomes a relative-pose edge of the final pose graph and of bundle
+//! adjustment: the keyframe chain is then held by whole depth images, not by keypoints alone
+//! (what dense frame-to-model trackers such as KinectFusion gain over sparse ones).
+//!
+//! The alignments start from tracking's relative poses (never changed), so their result does
+//! not depend on when they run: threaded and single-thread runs give the same edges.
+
+use super::config::SlamConfig;
+use super::depth_alignment::{DepthModel, align, sqrt_information};
+use super::map::Map;
+use super::pose_graph::Edge;
+use crate::camera::{Camera, RayTable};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What the keyframe alignments did.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct KeyframeAlignmentSummary {
+    /// Keyframe pairs aligned.
+    pub pairs: usize,
+    /// Pairs that became edges.
+    pub edges: usize,
+    /// Median correction of tracking's relative pose over the kept pairs, metres.
+    pub median_correction: f64,
+    pub seconds: f64,
+}
+
+/// The edges between each keyframe and its `dense.keyframe_edges` predecessors, in the
+/// pose graph's convention (`Z = T_i⁻¹ T_j`, `i < j`), ordered by `(i, j)`.
+pub fn keyframe_edges(
+    map: &Map,
+    camera: &Camera,
+    cfg: &SlamConfig,
+) -> (Vec<Edge>, KeyframeAlignmentSummary) {
+    let started = Instant::now();
+    let d = &cfg.dense;
+    let n = map.keyframes.len();
+    let mut summary = KeyframeAlignmentSummary::default();
+    let Some(first) = map.keyframes.first() else {
+        return (Vec::new(), summary);
+    };
+    if d.keyframe_edges == 0 || n < 2 {
+        return (Vec::new(), summary);
+    }
+    let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
+    let rays = Arc::new(RayTable::new(camera, first.view.stride));
+    let information = sqrt_information(d).map(|w| w * w);
+    // One model at a time per thread: a keyframe's model is built once and every later
+    // keyframe within reach is aligned to it.
+    let per_model: Vec<Vec<(Edge, f64)>> = (0..n - 1)
+        .into_par_iter()
+        .map(|i| {
+            let a = &map.keyframes[i];
+            let Some(model) =
+                DepthModel::new(&a.view.depth, camera, rays.clone(), d.model_step, range)
+            else {
+                return Vec::new();
+            };
+            (i + 1..n.min(i + 1 + d.keyframe_edges))
+                .filter_map(|j| {
+                    let b = &map.keyframes[j];
+                    let initial = a.odom_pose.inverse() * b.odom_pose;
+                    let found = align(&model, &b.view.depth, &initial, range, d)?;
+                    if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
+                        return None;
+                    }
+                    let change = initial.inverse() * found.pose;
+                    let moved = change.translation.vector.norm();
+                    (moved <= d.agree_translation
+                        && change.rotation.angle().to_degrees() <= d.agree_rotation_deg)
+                        .then(|| {
+                            let edge = Edge {
+                                i,
+                                j,
+                                measurement: found.pose,
+                                information,
+                            };
+                            (edge, moved)
+                        })
+                })
+                .collect()
+        })
+        .collect();
+    summary.pairs = (0..n - 1).map(|i| (n - 1 - i).min(d.keyframe_edges)).sum();
+    let mut moved: Vec<f64> = per_model.iter().flatten().map(|(_, m)| *m).collect();
+    moved.sort_by(f64::total_cmp);
+    summary.median_correction = moved.get(moved.len() / 2).copied().unwrap_or(0.0);
+    let edges: Vec<Edge> = per_model.into_iter().flatten().map(|(e, _)| e).collect();
+    summary.edges = edges.len();
+    summary.seconds = started.elapsed().as_secs_f64();
+    (edges, summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::{DepthImage, LabelImage};
+    use crate::geometry::Pose;
+    use crate::slam::depth_alignment::tests::render;
+    use crate::slam::map::{KeyFrame, KeyframeFeatures, KeyframeView};
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn keyframe(id: usize, depth: &DepthImage, odom_pose: Pose) -> KeyFrame {
+        let (w, h) = (depth.width, depth.height);
+        KeyFrame {
+            id,
+            frame_index: id,
+            stamp: id as f64,
+            odom_pose,
+            pose: odom_pose,
+            gt_pose: None,
+            track: Arc::new(KeyframeFeatures::default()),
+            view: KeyframeView::new(
+                2,
+                &image::RgbImage::new(w, h),
+                depth,
+                &LabelImage::new(w, h, 0),
+            ),
+            depth_scale: 1.0,
+        }
+    }
+
+    fn config(keyframe_edges: usize) -> SlamConfig {
+        let mut cfg = SlamConfig::default();
+        cfg.dense.keyframe_edges = keyframe_edges;
+        cfg.dense.min_pairs = 100;
+        cfg.tracking.min_depth = 0.1;
+        cfg.tracking.max_depth = 6.0;
+        cfg
+    }
+
+    /// Three keyframes of the box room 2-4 cm apart; tracking's poses are off by about
+    /// 1 cm, the third one's by 5 cm (the ICP finds it, beyond `agree_translation`).
+    fn scene(camera: &Camera) -> (Map, Vec<Pose>) {
+        let truth: Vec<Pose> = (0..3)
+            .map(|k| {
+                let k = k as f64;
+                Pose::from_parts(
+                    Translation3::new(0.02 * k, -0.01 * k, 0.03 * k),
+                    UnitQuaternion::from_euler_angles(0.01 * k, -0.015 * k, 0.005 * k),
+                )
+            })
+            .collect();
+        let noise = [
+            Pose::identity(),
+            Pose::from_parts(
+                Translation3::new(0.008, -0.006, 0.004),
+                UnitQuaternion::from_euler_angles(0.004, 0.0, -0.003),
+            ),
+            Pose::from_parts(
+                Translation3::new(0.05, 0.0, 0.0),
+                UnitQuaternion::identity(),
+            ),
+        ];
+        let keyframes = truth
+            .iter()
+            .zip(noise)
+            .enumerate()
+            .map(|(k, (t, n))| keyframe(k, &render(camera, t), t * n))
+            .collect();
+        let map = Map {
+            keyframes,
+            ..Map::default()
+        };
+        (map, truth)
+    }
+
+    #[test]
+    fn edges_measure_the_true_relative_poses_and_drop_disagreeing_pairs() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (map, truth) = scene(&camera);
+        let (edges, summary) = keyframe_edges(&map, &camera, &config(2));
+        // Pairs (0,1), (0,2), (1,2); the two with keyframe 2 move 5 cm and are dropped.
+        assert_eq!(summary.pairs, 3);
+        assert_eq!(edges.len(), 1, "{edges:?}");
+        assert_eq!(summary.edges, 1);
+        let e = &edges[0];
+        assert_eq!((e.i, e.j), (0, 1));
+        let expected = truth[0].inverse() * truth[1];
+        let err = expected.inverse() * e.measurement;
+        assert!(
+            err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
+            "{err:?}"
+        );
+        // About the 1 cm tracking was off by.
+        assert!(summary.median_correction > 0.005, "{summary:?}");
+        let sigma = config(2).dense.sigma_translation;
+        assert!((e.information[0] - 1.0 / (sigma * sigma)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn no_edges_when_off_or_with_one_keyframe() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (mut map, _) = scene(&camera);
+        let (edges, summary) = keyframe_edges(&map, &camera, &config(0));
+        assert!(edges.is_empty());
+        assert_eq!(summary.pairs, 0);
+        map.keyframes.truncate(1);
+        assert!(keyframe_edges(&map, &camera, &config(2)).0.is_empty());
+        // One predecessor only: (0,1) and (1,2).
+        let (map, _) = scene(&camera);
+        let (_, summary) = keyframe_edges(&map, &camera, &config(1));
+        assert_eq!(summary.pairs, 2);
+    }
+}

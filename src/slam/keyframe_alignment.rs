@@ -1,37 +1,92 @@
-//! Depth between keyframes (RGB-D mode): each keyframe's depth image aligned to its
-//! predecessors' by the point-to-plane ICP of [`super::depth_alignment`], at the keyframes'
-//! fusion resolution. An alignment that pairs enough points and agrees with tracking's
-//! relative pose becomes a relative-pose edge of the final pose graph and of bundle
-//! adjustment: the keyframe chain is then held by whole depth images, not by keypoints alone
-//! (what dense frame-to-model trackers such as KinectFusion gain over sparse ones).
+//! Depth between keyframes (RGB-D mode): keyframe depth images aligned to each other by the
+//! point-to-plane ICP of [`super::depth_alignment`], at the keyframes' fusion resolution:
+//! each keyframe to its `dense.keyframe_edges` predecessors, from tracking's relative pose,
+//! and (`dense.loop_edges`) the two keyframes of each verified loop constraint, from its PnP
+//! pose. An alignment that pairs enough points and agrees with its starting pose becomes a
+//! relative-pose edge of the final pose graph and of bundle adjustment: the keyframes are then
+//! held by whole depth images, not by keypoints alone (what dense trackers such as
+//! KinectFusion gain over sparse ones).
 //!
-//! The alignments start from tracking's relative poses (never changed), so their result does
-//! not depend on when they run: threaded and single-thread runs give the same edges.
+//! The starting poses never change once made (tracking's odometry, the constraints' PnP), so
+//! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
 use super::config::SlamConfig;
 use super::depth_alignment::{DepthModel, align, sqrt_information};
-use super::map::Map;
+use super::map::{ConstraintKind, Map};
 use super::pose_graph::Edge;
 use crate::camera::{Camera, RayTable};
+use crate::geometry::Pose;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
 /// What the keyframe alignments did.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct KeyframeAlignmentSummary {
-    /// Keyframe pairs aligned.
+    /// Keyframe pairs aligned (consecutive ones and loop pairs).
     pub pairs: usize,
     /// Pairs that became edges.
     pub edges: usize,
-    /// Median correction of tracking's relative pose over the kept pairs, metres.
+    /// Of those, loop pairs.
+    #[serde(default)]
+    pub loop_edges: usize,
+    /// Median change of the starting relative pose over the kept pairs, metres.
     pub median_correction: f64,
     pub seconds: f64,
 }
 
-/// The edges between each keyframe and its `dense.keyframe_edges` predecessors, in the
-/// pose graph's convention (`Z = T_i⁻¹ T_j`, `i < j`), ordered by `(i, j)`.
+/// A keyframe paired with an earlier one (whose depth becomes the model).
+#[derive(Debug, Clone, Copy)]
+struct Pair {
+    later: usize,
+    /// Starting `T_i⁻¹ T_j`.
+    start: Pose,
+    is_loop: bool,
+}
+
+/// The keyframe pairs to align, grouped by the earlier keyframe.
+fn pairs(map: &Map, cfg: &SlamConfig) -> BTreeMap<usize, Vec<Pair>> {
+    let d = &cfg.dense;
+    let n = map.keyframes.len();
+    let mut by_model: BTreeMap<usize, Vec<Pair>> = BTreeMap::new();
+    for i in 0..n {
+        for j in i + 1..n.min(i + 1 + d.keyframe_edges) {
+            let (a, b) = (&map.keyframes[i], &map.keyframes[j]);
+            by_model.entry(i).or_default().push(Pair {
+                later: j,
+                start: a.odom_pose.inverse() * b.odom_pose,
+                is_loop: false,
+            });
+        }
+    }
+    if d.loop_edges {
+        for c in &map.constraints {
+            let (i, j) = (c.a.min(c.b), c.a.max(c.b));
+            let beyond_window = j > i + d.keyframe_edges;
+            if c.kind != ConstraintKind::Odometry && beyond_window && j < n {
+                let start = if c.a < c.b {
+                    c.relative
+                } else {
+                    c.relative.inverse()
+                };
+                let list = by_model.entry(i).or_default();
+                if !list.iter().any(|p| p.later == j) {
+                    list.push(Pair {
+                        later: j,
+                        start,
+                        is_loop: true,
+                    });
+                }
+            }
+        }
+    }
+    by_model
+}
+
+/// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
+/// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
 pub fn keyframe_edges(
     map: &Map,
     camera: &Camera,
@@ -39,33 +94,33 @@ pub fn keyframe_edges(
 ) -> (Vec<Edge>, KeyframeAlignmentSummary) {
     let started = Instant::now();
     let d = &cfg.dense;
-    let n = map.keyframes.len();
     let mut summary = KeyframeAlignmentSummary::default();
     let Some(first) = map.keyframes.first() else {
         return (Vec::new(), summary);
     };
-    if d.keyframe_edges == 0 || n < 2 {
+    if d.keyframe_edges == 0 || map.keyframes.len() < 2 {
         return (Vec::new(), summary);
     }
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let rays = Arc::new(RayTable::new(camera, first.view.stride));
     let information = sqrt_information(d).map(|w| w * w);
-    // One model at a time per thread: a keyframe's model is built once and every later
-    // keyframe within reach is aligned to it.
-    let per_model: Vec<Vec<(Edge, f64)>> = (0..n - 1)
-        .into_par_iter()
-        .map(|i| {
-            let a = &map.keyframes[i];
+    let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
+    summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
+    // One model at a time per thread: a keyframe's model is built once and every keyframe
+    // paired with it is aligned to it.
+    let per_model: Vec<Vec<(Edge, f64, bool)>> = groups
+        .par_iter()
+        .map(|(i, list)| {
+            let a = &map.keyframes[*i];
             let Some(model) =
                 DepthModel::new(&a.view.depth, camera, rays.clone(), d.model_step, range)
             else {
                 return Vec::new();
             };
-            (i + 1..n.min(i + 1 + d.keyframe_edges))
-                .filter_map(|j| {
-                    let b = &map.keyframes[j];
-                    let initial = a.odom_pose.inverse() * b.odom_pose;
-                    let found = align(&model, &b.view.depth, &initial, range, d)?;
+            list.iter()
+                .filter_map(|p| {
+                    let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
+                    let found = align(&model, &map.keyframes[j].view.depth, &initial, range, d)?;
                     if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
                         return None;
                     }
@@ -75,22 +130,22 @@ pub fn keyframe_edges(
                         && change.rotation.angle().to_degrees() <= d.agree_rotation_deg)
                         .then(|| {
                             let edge = Edge {
-                                i,
+                                i: *i,
                                 j,
                                 measurement: found.pose,
                                 information,
                             };
-                            (edge, moved)
+                            (edge, moved, is_loop)
                         })
                 })
                 .collect()
         })
         .collect();
-    summary.pairs = (0..n - 1).map(|i| (n - 1 - i).min(d.keyframe_edges)).sum();
-    let mut moved: Vec<f64> = per_model.iter().flatten().map(|(_, m)| *m).collect();
+    let mut moved: Vec<f64> = per_model.iter().flatten().map(|(_, m, _)| *m).collect();
     moved.sort_by(f64::total_cmp);
     summary.median_correction = moved.get(moved.len() / 2).copied().unwrap_or(0.0);
-    let edges: Vec<Edge> = per_model.into_iter().flatten().map(|(e, _)| e).collect();
+    summary.loop_edges = per_model.iter().flatten().filter(|(_, _, l)| *l).count();
+    let edges: Vec<Edge> = per_model.into_iter().flatten().map(|(e, _, _)| e).collect();
     summary.edges = edges.len();
     summary.seconds = started.elapsed().as_secs_f64();
     (edges, summary)
@@ -191,6 +246,45 @@ mod tests {
         assert!(summary.median_correction > 0.005, "{summary:?}");
         let sigma = config(2).dense.sigma_translation;
         assert!((e.information[0] - 1.0 / (sigma * sigma)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn loop_pairs_start_from_their_constraint() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (mut map, truth) = scene(&camera);
+        // A verified loop constraint between keyframes 0 and 2, its PnP pose 8 mm off: the
+        // alignment starts there, not from tracking's pose of keyframe 2 (5 cm off).
+        let noise = Pose::from_parts(
+            Translation3::new(0.0, 0.006, -0.005),
+            UnitQuaternion::from_euler_angles(0.0, 0.003, 0.0),
+        );
+        map.constraints.push(crate::slam::map::Constraint {
+            a: 0,
+            b: 2,
+            relative: truth[0].inverse() * truth[2] * noise,
+            kind: ConstraintKind::Proximity,
+            inliers: 50,
+            matches: Vec::new(),
+        });
+        let (edges, summary) = keyframe_edges(&map, &camera, &config(1));
+        // (0,1) and (1,2) consecutive, (0,2) the loop pair; (1,2) starts 5 cm off.
+        assert_eq!(summary.pairs, 3);
+        assert_eq!(summary.loop_edges, 1, "{summary:?}");
+        let e = edges
+            .iter()
+            .find(|e| (e.i, e.j) == (0, 2))
+            .expect("the loop edge");
+        let err = (truth[0].inverse() * truth[2]).inverse() * e.measurement;
+        assert!(
+            err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
+            "{err:?}"
+        );
+        // Off: the consecutive pairs only.
+        let mut cfg = config(1);
+        cfg.dense.loop_edges = false;
+        let (edges, summary) = keyframe_edges(&map, &camera, &cfg);
+        assert_eq!(summary.pairs, 2);
+        assert!(edges.iter().all(|e| e.j == e.i + 1));
     }
 
     #[test]

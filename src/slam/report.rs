@@ -438,9 +438,10 @@ impl Report {
         if let Some(k) = &self.keyframe_alignment {
             let _ = writeln!(
                 s,
-                "\nKeyframe alignment (depth ICP between keyframes): {} of {} keyframe pairs became edges of the final pose graph and bundle adjustment (median correction of tracking's relative pose {:.1} mm), {:.3} s.",
+                "\nKeyframe alignment (depth ICP between keyframes): {} of {} keyframe pairs became edges of the final pose graph and bundle adjustment ({} of them loop pairs; median change of the starting relative pose {:.1} mm), {:.3} s.",
                 k.edges,
                 k.pairs,
+                k.loop_edges,
                 k.median_correction * 1000.0,
                 k.seconds
             );

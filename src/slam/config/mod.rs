@@ -282,6 +282,9 @@ pub struct DenseConfig {
     /// tracking becomes a relative-pose edge of the pose graph and of bundle adjustment
     /// ([`crate::slam::keyframe_alignment`]; 0: none, and in monocular mode never).
     pub keyframe_edges: usize,
+    /// With `keyframe_edges` > 0: also align the two keyframes of each verified loop
+    /// constraint (proximity, similarity, random), from its PnP pose.
+    pub loop_edges: bool,
     /// An alignment becomes an edge only when at least this share of the later keyframe's
     /// sampled points is paired at the last level (misaligned pairs pair fewer).
     pub edge_min_inlier_fraction: f64,
@@ -322,6 +325,7 @@ impl Default for DenseConfig {
             agree_translation: 0.03,
             agree_rotation_deg: 2.0,
             keyframe_edges: 2,
+            loop_edges: true,
             edge_min_inlier_fraction: 0.5,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,

@@ -26,7 +26,7 @@ fn fits(rays: &RayTable, depth: &DepthImage) -> bool {
 pub struct DepthModel {
     width: usize,
     height: usize,
-    /// Point and normal, single precision (24 bytes a sample keeps the grid in cache);
+    /// Point and normal, single precision (28 bytes a sample: the grid stays in cache);
     /// `None` where the depth is missing, out of range, or has no normal.
     points: Vec<Option<[f32; 6]>>,
     camera: Camera,
@@ -113,8 +113,7 @@ impl DepthModel {
             return None;
         }
         let (x, y) = (p[0] / p[2], p[1] / p[2]);
-        let b = &self.bounds;
-        if !(x > b.x.0 && x < b.x.1 && y > b.y.0 && y < b.y.1) {
+        if !self.bounds.contains_normalized(x, y) {
             return None;
         }
         let c = &self.camera;

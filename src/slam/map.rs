@@ -101,7 +101,12 @@ impl ViewBounds {
         if p.z <= 1e-6 {
             return false;
         }
-        let (x, y) = (p.x / p.z, p.y / p.z);
+        self.contains_normalized(p.x / p.z, p.y / p.z)
+    }
+
+    /// Whether normalised image coordinates `(x/z, y/z)` are inside the bounds.
+    #[inline]
+    pub fn contains_normalized(&self, x: f64, y: f64) -> bool {
         x > self.x.0 && x < self.x.1 && y > self.y.0 && y < self.y.1
     }
 }

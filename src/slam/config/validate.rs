@@ -167,21 +167,11 @@ impl SlamConfig {
         count(d.iterations, 1, 100, "dense.iterations")?;
         pos(d.huber, "dense.huber")?;
         count(d.min_pairs, 6, 10_000_000, "dense.min_pairs")?;
-        if !(0.0..=1.0).contains(&d.min_inlier_fraction) {
-            return Err(format!(
-                "dense.min_inlier_fraction must be in [0, 1], got {}",
-                d.min_inlier_fraction
-            ));
-        }
+        fraction(d.min_inlier_fraction, "dense.min_inlier_fraction")?;
         pos(d.agree_translation, "dense.agree_translation")?;
         pos(d.agree_rotation_deg, "dense.agree_rotation_deg")?;
         count(d.keyframe_edges, 0, 16, "dense.keyframe_edges")?;
-        if !(0.0..=1.0).contains(&d.edge_min_inlier_fraction) {
-            return Err(format!(
-                "dense.edge_min_inlier_fraction must be in [0, 1], got {}",
-                d.edge_min_inlier_fraction
-            ));
-        }
+        fraction(d.edge_min_inlier_fraction, "dense.edge_min_inlier_fraction")?;
         pos(d.sigma_translation, "dense.sigma_translation")?;
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         Ok(())
@@ -263,9 +253,7 @@ impl SlamConfig {
 
     /// Labels, data correction and evaluation.
     fn validate_correction(&self) -> std::result::Result<(), String> {
-        if !(0.0..=1.0).contains(&self.labels.min_share) {
-            return Err("labels.min_share must be in [0, 1]".into());
-        }
+        fraction(self.labels.min_share, "labels.min_share")?;
         pos(
             self.correction.proximity_radius,
             "correction.proximity_radius",
@@ -286,9 +274,10 @@ impl SlamConfig {
         if self.correction.min_inliers < 4 {
             return Err("correction.min_inliers must be at least 4".into());
         }
-        if !(0.0..=1.0).contains(&self.correction.min_inlier_ratio) {
-            return Err("correction.min_inlier_ratio must be in [0, 1]".into());
-        }
+        fraction(
+            self.correction.min_inlier_ratio,
+            "correction.min_inlier_ratio",
+        )?;
         if !(0.0..1.0).contains(&self.correction.local_max_scale_change) {
             return Err("correction.local_max_scale_change must be in [0, 1)".into());
         }
@@ -323,6 +312,15 @@ impl SlamConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// A share, in [0, 1] (NaN is not).
+fn fraction(v: f64, name: &str) -> std::result::Result<(), String> {
+    if (0.0..=1.0).contains(&v) {
+        Ok(())
+    } else {
+        Err(format!("{name} must be in [0, 1], got {v}"))
     }
 }
 

@@ -624,7 +624,8 @@ pub fn refine_frames(
         bf: if monocular { 0.0 } else { b.depth_bf },
     };
     let (min_depth, max_depth) = (cfg.tracking.min_depth, cfg.tracking.max_depth);
-    let dense_sqrt_info = sqrt_information(&cfg.dense);
+    let d = &cfg.dense;
+    let dense_sqrt_info = sqrt_information(d.prior_sigma_translation, d.prior_sigma_rotation_deg);
     let mut refined = 0;
     for f in frames.iter_mut() {
         let Some((k, kf)) = f

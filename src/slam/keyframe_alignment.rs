@@ -103,7 +103,7 @@ pub fn keyframe_edges(
     }
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let rays = Arc::new(RayTable::new(camera, first.view.stride));
-    let information = sqrt_information(d).map(|w| w * w);
+    let information = sqrt_information(d.sigma_translation, d.sigma_rotation_deg).map(|w| w * w);
     let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
     summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
     // One model at a time per thread: a keyframe's model is built once and every keyframe

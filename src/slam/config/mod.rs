@@ -269,6 +269,10 @@ pub struct DenseConfig {
     pub iterations: usize,
     /// Point-to-plane distances beyond this (metres) are down-weighted (Huber).
     pub huber: f64,
+    /// Weigh each pair by the inverse variance of the sensor's depth noise at its depth,
+    /// relative to 1 m (a Kinect's, which grows with the square of the depth:
+    /// [`crate::slam::depth_alignment::axial_noise`]); `huber` then applies at 1 m.
+    pub noise_weighting: bool,
     /// Fewer pairs than this: no refinement.
     pub min_pairs: usize,
     /// Fewer than this share of the frame's sampled points paired at the last level: not kept.
@@ -288,11 +292,14 @@ pub struct DenseConfig {
     /// An alignment becomes an edge only when at least this share of the later keyframe's
     /// sampled points is paired at the last level (misaligned pairs pair fewer).
     pub edge_min_inlier_fraction: f64,
-    /// Standard deviations of a relative pose from the ICP, metres and degrees: of the
-    /// keyframe edges, and of the prior that keeps a refined frame's dense pose when the frame
-    /// is refined again after bundle adjustment.
+    /// Standard deviations of a keyframe edge (a relative pose from the ICP), metres and
+    /// degrees.
     pub sigma_translation: f64,
     pub sigma_rotation_deg: f64,
+    /// Standard deviations of the prior that keeps a refined frame's dense pose when the
+    /// frame is refined again against the adjusted points after bundle adjustment.
+    pub prior_sigma_translation: f64,
+    pub prior_sigma_rotation_deg: f64,
 }
 
 /// One level of [`DenseConfig::levels`].
@@ -320,6 +327,7 @@ impl Default for DenseConfig {
             ],
             iterations: 10,
             huber: 0.01,
+            noise_weighting: true,
             min_pairs: 500,
             min_inlier_fraction: 0.3,
             agree_translation: 0.03,
@@ -329,6 +337,8 @@ impl Default for DenseConfig {
             edge_min_inlier_fraction: 0.5,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,
+            prior_sigma_translation: 0.0005,
+            prior_sigma_rotation_deg: 0.1,
         }
     }
 }

@@ -174,6 +174,8 @@ impl SlamConfig {
         fraction(d.edge_min_inlier_fraction, "dense.edge_min_inlier_fraction")?;
         pos(d.sigma_translation, "dense.sigma_translation")?;
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
+        pos(d.prior_sigma_translation, "dense.prior_sigma_translation")?;
+        pos(d.prior_sigma_rotation_deg, "dense.prior_sigma_rotation_deg")?;
         Ok(())
     }
 

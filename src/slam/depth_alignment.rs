@@ -441,9 +441,10 @@ pub(crate) mod tests {
 
     #[test]
     fn noise_weighting_scales_each_pair_by_its_depth() {
-        // A wall facing the camera, the frame 4 mm nearer (within Huber's threshold): every
-        // pair has the same residual, so weighting scales the whole system by the weight at
-        // the wall's depth, 1 at 1 m and about a tenth at 2 m.
+        // A wall facing the camera, the frame nearer by `offset`: every pair has the same
+        // residual, so weighting scales the whole system by one factor. 4 mm is within Huber's
+        // 1 cm either way: the weight at the wall's depth (1 at 1 m, about a tenth at 2 m). 2 cm
+        // is beyond it unweighted (Huber's weight 1/2); whitened at 2 m it is 6 mm, within.
         let camera = Camera::tum_fr1().resized(80, 60);
         let rays = Arc::new(RayTable::new(&camera, 1));
         let wall = |z: f32| {
@@ -451,23 +452,29 @@ pub(crate) mod tests {
             d.data.fill(z);
             d
         };
-        for z in [1.0f32, 2.0] {
+        let w2 = noise_weight(2.0);
+        for (z, offset, factor) in [
+            (1.0f32, 0.004, 1.0),
+            (2.0, 0.004, w2),
+            (1.0, 0.02, 1.0),
+            (2.0, 0.02, w2 / 0.5),
+        ] {
             let model = DepthModel::new(&wall(z), &camera, rays.clone(), 1, (0.1, 6.0)).unwrap();
             let source: Vec<Vector3<f64>> = (0..60)
                 .flat_map(|v| (0..80).map(move |u| (u, v)))
-                .map(|(u, v)| rays.point(u, v, f64::from(z) - 0.004).coords)
+                .map(|(u, v)| rays.point(u, v, f64::from(z) - offset).coords)
                 .collect();
             let pose = Pose::identity();
             let (h0, g0, n0, _) = normal_equations(&model, &source, &pose, 0.1, 0.01, false);
             let (h1, g1, n1, _) = normal_equations(&model, &source, &pose, 0.1, 0.01, true);
             assert_eq!(n0, n1);
             assert!(n0 > 3000, "{n0} pairs");
-            let w = noise_weight(f64::from(z));
+            let case = format!("wall at {z} m, {offset} m nearer");
             assert!(
-                (h1 - h0 * w).norm() < 1e-6 * h0.norm(),
-                "{h1} vs {w} x {h0}"
+                (h1 - h0 * factor).norm() < 1e-6 * h0.norm(),
+                "{case}: {h1} vs {factor} x {h0}"
             );
-            assert!((g1 - g0 * w).norm() < 1e-6 * g0.norm());
+            assert!((g1 - g0 * factor).norm() < 1e-6 * g0.norm(), "{case}");
         }
     }
 

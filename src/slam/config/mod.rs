@@ -267,11 +267,14 @@ pub struct DenseConfig {
     pub levels: Vec<DenseLevel>,
     /// Gauss-Newton iterations per level.
     pub iterations: usize,
-    /// Point-to-plane distances beyond this (metres) are down-weighted (Huber).
+    /// Point-to-plane distances beyond this (metres; at 1 m with `noise_weighting`) are
+    /// down-weighted (Huber).
     pub huber: f64,
     /// Weigh each pair by the inverse variance of the sensor's depth noise at its depth,
     /// relative to 1 m (a Kinect's, which grows with the square of the depth:
-    /// [`crate::slam::depth_alignment::axial_noise`]); `huber` then applies at 1 m.
+    /// [`crate::slam::depth_alignment::axial_noise`]; the model point's axial noise only,
+    /// whatever the angle of the surface); `huber` then applies at 1 m, so at 3 m to
+    /// distances 7.5 times larger, where the levels' `max_distance` gates first.
     pub noise_weighting: bool,
     /// Fewer pairs than this: no refinement.
     pub min_pairs: usize,

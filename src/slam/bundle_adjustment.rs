@@ -19,9 +19,10 @@
 //! is small (tens of poses, thousands of points).
 
 use super::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
-use super::depth_alignment::sqrt_information;
 use super::map::Map;
-use super::pose_graph::{Edge, EdgeTerms, edge_terms, robust, se3_exp, se3_log, skew};
+use super::pose_graph::{
+    Edge, EdgeTerms, edge_terms, robust, se3_exp, se3_log, skew, sqrt_information,
+};
 use super::tracking::FrameRecord;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};

@@ -20,11 +20,11 @@ use super::bundle_adjustment::{BaSummary, Track, adjust_map, match_groups};
 use super::config::SlamConfig;
 use super::keypoints::similarity;
 use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
-use super::pose_graph::{Edge, LmSettings, LmSummary, optimise};
+use super::pose_graph::{Edge, LmSettings, LmSummary, information, optimise};
 use super::tracking::verify_pair;
 use crate::camera::Camera;
 use crate::geometry::Pose;
-use nalgebra::{Point3, Vector3, Vector6};
+use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -267,10 +267,7 @@ impl Corrector {
 
     fn edges(&self, m: &Map, n: usize) -> Vec<Edge> {
         let c = &self.cfg.correction;
-        let it = 1.0 / (c.sigma_translation * c.sigma_translation);
-        let sr = c.sigma_rotation_deg.to_radians();
-        let ir = 1.0 / (sr * sr);
-        let info = Vector6::new(it, it, it, ir, ir, ir);
+        let info = information(c.sigma_translation, c.sigma_rotation_deg);
         m.constraints
             .iter()
             .filter(|e| e.b < n)

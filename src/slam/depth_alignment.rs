@@ -1,7 +1,8 @@
 //! Depth beyond the keypoints (RGB-D mode): a tracked frame's pose refined against its
 //! reference keyframe's whole depth image by projective point-to-plane ICP, KinectFusion's
 //! association (a frame point is paired with the keyframe point its projection lands on),
-//! coarse to fine, with Huber weights. Pixels go through the camera's distortion model both
+//! coarse to fine, with Huber weights (and, by default, the sensor's depth noise:
+//! [`axial_noise`]). Pixels go through the camera's distortion model both
 //! ways, as everywhere else in the system. Tracking keeps the refined pose only when it agrees
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
 
@@ -138,13 +139,6 @@ impl DepthModel {
         }
         self.points[gy as usize * self.width + gx as usize].as_ref()
     }
-}
-
-/// The square root of a relative pose's information, `(ρ, φ)`, from the standard deviations
-/// of its translation (metres) and rotation (degrees).
-pub fn sqrt_information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
-    let (t, r) = (sigma_translation, sigma_rotation_deg.to_radians());
-    Vector6::new(1.0 / t, 1.0 / t, 1.0 / t, 1.0 / r, 1.0 / r, 1.0 / r)
 }
 
 /// The outcome of [`align`].

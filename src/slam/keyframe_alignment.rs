@@ -11,9 +11,9 @@
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
 use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, align, sqrt_information};
+use super::depth_alignment::{DepthModel, align};
 use super::map::{ConstraintKind, Map};
-use super::pose_graph::Edge;
+use super::pose_graph::{Edge, sqrt_information};
 use crate::camera::{Camera, RayTable};
 use crate::geometry::Pose;
 use rayon::prelude::*;

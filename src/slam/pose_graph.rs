@@ -88,6 +88,21 @@ pub struct Edge {
     pub information: Vector6<f64>,
 }
 
+/// An edge's information from the standard deviations of its translation (metres) and
+/// rotation (degrees).
+pub fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
+    let it = 1.0 / (sigma_translation * sigma_translation);
+    let sr = sigma_rotation_deg.to_radians();
+    let ir = 1.0 / (sr * sr);
+    Vector6::new(it, it, it, ir, ir, ir)
+}
+
+/// The square root of [`information`]: one over the standard deviations.
+pub fn sqrt_information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
+    let (t, r) = (sigma_translation, sigma_rotation_deg.to_radians());
+    Vector6::new(1.0 / t, 1.0 / t, 1.0 / t, 1.0 / r, 1.0 / r, 1.0 / r)
+}
+
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LmSettings {

@@ -2,7 +2,7 @@
 //! point-to-plane ICP of [`super::depth_alignment`], at the keyframes' fusion resolution:
 //! each keyframe to its `dense.keyframe_edges` predecessors, from tracking's relative pose,
 //! and (`dense.loop_edges`) the two keyframes of each verified loop constraint, from its PnP
-//! pose. An alignment that pairs enough points and agrees with its starting pose becomes a
+//! pose. An alignment that pairs enough points and stays near its starting pose becomes a
 //! relative-pose edge of the final pose graph and of bundle adjustment: the keyframes are then
 //! held by whole depth images, not by keypoints alone (what dense trackers such as
 //! KinectFusion gain over sparse ones).
@@ -126,8 +126,8 @@ pub fn keyframe_edges(
                     }
                     let change = initial.inverse() * found.pose;
                     let moved = change.translation.vector.norm();
-                    (moved <= d.agree_translation
-                        && change.rotation.angle().to_degrees() <= d.agree_rotation_deg)
+                    (moved <= d.edge_agree_translation
+                        && change.rotation.angle().to_degrees() <= d.edge_agree_rotation_deg)
                         .then(|| {
                             let edge = Edge {
                                 i: *i,
@@ -190,7 +190,7 @@ mod tests {
     }
 
     /// Three keyframes of the box room 2-4 cm apart; tracking's poses are off by about
-    /// 1 cm, the third one's by 5 cm (the ICP finds it, beyond `agree_translation`).
+    /// 1 cm, the third one's by 5 cm (tracking slipped; the ICP finds the truth).
     fn scene(camera: &Camera) -> (Map, Vec<Pose>) {
         let truth: Vec<Pose> = (0..3)
             .map(|k| {
@@ -229,8 +229,11 @@ mod tests {
     fn edges_measure_the_true_relative_poses_and_drop_disagreeing_pairs() {
         let camera = Camera::tum_fr1().resized(320, 240);
         let (map, truth) = scene(&camera);
-        let (edges, summary) = keyframe_edges(&map, &camera, &config(2));
-        // Pairs (0,1), (0,2), (1,2); the two with keyframe 2 move 5 cm and are dropped.
+        let mut cfg = config(2);
+        cfg.dense.edge_agree_translation = 0.03;
+        let (edges, summary) = keyframe_edges(&map, &camera, &cfg);
+        // Pairs (0,1), (0,2), (1,2); the two with keyframe 2 move 5 cm, beyond the 3 cm
+        // gate, and are dropped.
         assert_eq!(summary.pairs, 3);
         assert_eq!(edges.len(), 1, "{edges:?}");
         assert_eq!(summary.edges, 1);
@@ -246,6 +249,29 @@ mod tests {
         assert!(summary.median_correction > 0.005, "{summary:?}");
         let sigma = config(2).dense.sigma_translation;
         assert!((e.information[0] - 1.0 / (sigma * sigma)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_default_gate_keeps_the_alignment_of_a_keyframe_tracking_slipped_on() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (map, truth) = scene(&camera);
+        let cfg = config(2);
+        assert!(cfg.dense.edge_agree_translation > 0.05);
+        let (edges, summary) = keyframe_edges(&map, &camera, &cfg);
+        assert_eq!(summary.edges, 3, "{summary:?}");
+        for e in &edges {
+            let expected = truth[e.i].inverse() * truth[e.j];
+            let err = expected.inverse() * e.measurement;
+            assert!(
+                err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
+                "{e:?}: {err:?}"
+            );
+        }
+        // Keyframe 2's edges corrected tracking's 5 cm.
+        let to_2 = edges.iter().find(|e| (e.i, e.j) == (1, 2)).expect("(1,2)");
+        let start = map.keyframes[1].odom_pose.inverse() * map.keyframes[2].odom_pose;
+        let moved = (start.inverse() * to_2.measurement).translation.vector.norm();
+        assert!((0.04..0.06).contains(&moved), "{moved}");
     }
 
     #[test]

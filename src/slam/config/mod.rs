@@ -295,6 +295,12 @@ pub struct DenseConfig {
     /// An alignment becomes an edge only when at least this share of the later keyframe's
     /// sampled points is paired at the last level (misaligned pairs pair fewer).
     pub edge_min_inlier_fraction: f64,
+    /// ... and when it moves less than this translation (metres) and rotation (degrees) from
+    /// its starting pose (tracking's, or the loop constraint's PnP pose). Wider than the
+    /// frames' `agree_*`: a keyframe pair's start can be centimetres off where tracking
+    /// slipped, which is where its alignment matters most.
+    pub edge_agree_translation: f64,
+    pub edge_agree_rotation_deg: f64,
     /// Standard deviations of a keyframe edge (a relative pose from the ICP), metres and
     /// degrees.
     pub sigma_translation: f64,
@@ -338,6 +344,8 @@ impl Default for DenseConfig {
             keyframe_edges: 2,
             loop_edges: true,
             edge_min_inlier_fraction: 0.5,
+            edge_agree_translation: 0.1,
+            edge_agree_rotation_deg: 6.0,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,
             prior_sigma_translation: 0.0005,
@@ -748,6 +756,8 @@ mod tests {
             ("dense", "huber", "nan"),
             ("dense", "min_inlier_fraction", "2"),
             ("dense", "agree_rotation_deg", "-1"),
+            ("dense", "edge_agree_translation", "0"),
+            ("dense", "edge_agree_rotation_deg", "nan"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
             ("bundle_adjustment", "sigma_px", "0"),

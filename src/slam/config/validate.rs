@@ -172,6 +172,8 @@ impl SlamConfig {
         pos(d.agree_rotation_deg, "dense.agree_rotation_deg")?;
         count(d.keyframe_edges, 0, 16, "dense.keyframe_edges")?;
         fraction(d.edge_min_inlier_fraction, "dense.edge_min_inlier_fraction")?;
+        pos(d.edge_agree_translation, "dense.edge_agree_translation")?;
+        pos(d.edge_agree_rotation_deg, "dense.edge_agree_rotation_deg")?;
         pos(d.sigma_translation, "dense.sigma_translation")?;
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         pos(d.prior_sigma_translation, "dense.prior_sigma_translation")?;

@@ -270,7 +270,10 @@ mod tests {
         // Keyframe 2's edges corrected tracking's 5 cm.
         let to_2 = edges.iter().find(|e| (e.i, e.j) == (1, 2)).expect("(1,2)");
         let start = map.keyframes[1].odom_pose.inverse() * map.keyframes[2].odom_pose;
-        let moved = (start.inverse() * to_2.measurement).translation.vector.norm();
+        let moved = (start.inverse() * to_2.measurement)
+            .translation
+            .vector
+            .norm();
         assert!((0.04..0.06).contains(&moved), "{moved}");
     }
 

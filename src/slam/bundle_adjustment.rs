@@ -897,6 +897,7 @@ mod tests {
             j: 4,
             measurement: truth[3].inverse() * truth[4],
             information: Vector6::repeat(1e4),
+            robust: true,
         };
         let (mut poses, mut moved) = perturbed(&truth, &tracks);
         let fixed = [true, false, false, false, false];

@@ -282,6 +282,7 @@ impl Corrector {
                 } else {
                     info
                 },
+                robust: true,
             })
             .chain(self.extra_edges.iter().filter(|e| e.j < n).cloned())
             .collect()

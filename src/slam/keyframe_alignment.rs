@@ -134,6 +134,7 @@ pub fn keyframe_edges(
                                 j,
                                 measurement: found.pose,
                                 information,
+                                robust: d.robust_edges,
                             };
                             (edge, moved, is_loop)
                         })

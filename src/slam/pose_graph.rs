@@ -86,6 +86,9 @@ pub struct Edge {
     pub measurement: Pose,
     /// Information (inverse variances) of `(ρ, φ)`.
     pub information: Vector6<f64>,
+    /// Whether the solver's robust kernel applies (keypoint constraints, which may be
+    /// wrong); `false` for edges already gated where they were made (depth alignments).
+    pub robust: bool,
 }
 
 /// An edge's information from the standard deviations of its translation (metres) and
@@ -153,6 +156,11 @@ pub(super) fn robust(kernel: RobustKernel, delta: f64, r2: f64) -> (f64, f64) {
     }
 }
 
+/// The kernel an edge is solved with: `kernel`, or none for an edge that is not robust.
+fn kernel_of(e: &Edge, kernel: RobustKernel) -> RobustKernel {
+    if e.robust { kernel } else { RobustKernel::None }
+}
+
 fn edge_error(poses: &[Pose], e: &Edge) -> Vector6<f64> {
     se3_log(&(e.measurement.inverse() * poses[e.i].inverse() * poses[e.j]))
 }
@@ -176,7 +184,7 @@ pub(super) struct EdgeTerms {
 /// The error of an edge, its robust cost and weight, and its Jacobians.
 pub(super) fn edge_terms(poses: &[Pose], e: &Edge, kernel: RobustKernel, delta: f64) -> EdgeTerms {
     let err = edge_error(poses, e);
-    let (cost, w) = robust(kernel, delta, whitened2(&err, &e.information));
+    let (cost, w) = robust(kernel_of(e, kernel), delta, whitened2(&err, &e.information));
     let jr = jr_inv(&err);
     EdgeTerms {
         cost,
@@ -193,7 +201,7 @@ pub fn cost(poses: &[Pose], edges: &[Edge], settings: &LmSettings) -> f64 {
         .iter()
         .map(|e| {
             robust(
-                settings.kernel,
+                kernel_of(e, settings.kernel),
                 settings.delta,
                 whitened2(&edge_error(poses, e), &e.information),
             )
@@ -420,6 +428,7 @@ mod tests {
             j: 1,
             measurement: z,
             information: Vector6::repeat(1.0),
+            robust: true,
         };
         let err = edge_error(&poses, &edge);
         let jj = jr_inv(&err);
@@ -464,6 +473,7 @@ mod tests {
                 j: k,
                 measurement: z,
                 information: info,
+                robust: true,
             });
         }
         edges.push(Edge {
@@ -471,6 +481,7 @@ mod tests {
             j: n - 1,
             measurement: truth[0].inverse() * truth[n - 1],
             information: info,
+            robust: true,
         });
         let err = |p: &[Pose]| -> f64 {
             p.iter()
@@ -516,8 +527,9 @@ mod tests {
         loop_case(0);
     }
 
-    #[test]
-    fn robust_kernel_downweights_a_false_loop() {
+    /// A chain of ten poses 10 cm apart and a wrong loop claiming the last one is 0.5 m
+    /// off, the loop edge `robust` or not; the worst pose error after the solve.
+    fn false_loop(robust: bool) -> f64 {
         let n = 10;
         let truth: Vec<Pose> = (0..n)
             .map(|k| Pose::translation(0.1 * k as f64, 0.0, 0.0))
@@ -529,14 +541,15 @@ mod tests {
                 j: k,
                 measurement: truth[k - 1].inverse() * truth[k],
                 information: info,
+                robust: true,
             })
             .collect();
-        // A wrong loop claiming the last pose is 0.5 m off.
         edges.push(Edge {
             i: 0,
             j: n - 1,
             measurement: Pose::translation(0.4, 0.0, 0.0),
             information: info,
+            robust,
         });
         let mut poses = truth.clone();
         optimise(
@@ -548,11 +561,24 @@ mod tests {
                 ..Default::default()
             },
         );
-        let worst = poses
+        poses
             .iter()
             .zip(&truth)
             .map(|(a, b)| (a.translation.vector - b.translation.vector).norm())
-            .fold(0.0, f64::max);
+            .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn robust_kernel_downweights_a_false_loop() {
+        let worst = false_loop(true);
         assert!(worst < 0.05, "{worst}");
+    }
+
+    #[test]
+    fn an_edge_that_is_not_robust_keeps_its_full_weight() {
+        // At full weight the loop (as stiff as each chain edge, nine in series) bends the
+        // chain by most of its 0.5 m.
+        let worst = false_loop(false);
+        assert!(worst > 0.2, "{worst}");
     }
 }

@@ -301,6 +301,11 @@ pub struct DenseConfig {
     /// slipped, which is where its alignment matters most.
     pub edge_agree_translation: f64,
     pub edge_agree_rotation_deg: f64,
+    /// Whether the pose graph's and bundle adjustment's robust kernel (`correction.
+    /// robust_kernel`) applies to keyframe edges as to keypoint constraints. Off: an edge
+    /// passed the gates above, and the kernel would let many slightly wrong keypoint
+    /// constraints outvote a precise edge.
+    pub robust_edges: bool,
     /// Standard deviations of a keyframe edge (a relative pose from the ICP), metres and
     /// degrees.
     pub sigma_translation: f64,
@@ -346,6 +351,7 @@ impl Default for DenseConfig {
             edge_min_inlier_fraction: 0.5,
             edge_agree_translation: 0.1,
             edge_agree_rotation_deg: 6.0,
+            robust_edges: false,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,
             prior_sigma_translation: 0.0005,

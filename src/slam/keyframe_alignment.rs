@@ -13,7 +13,7 @@
 use super::config::SlamConfig;
 use super::depth_alignment::{DepthModel, align};
 use super::map::{ConstraintKind, Map};
-use super::pose_graph::{Edge, sqrt_information};
+use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
 use crate::geometry::Pose;
 use rayon::prelude::*;
@@ -103,7 +103,7 @@ pub fn keyframe_edges(
     }
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let rays = Arc::new(RayTable::new(camera, first.view.stride));
-    let information = sqrt_information(d.sigma_translation, d.sigma_rotation_deg).map(|w| w * w);
+    let information = information(d.sigma_translation, d.sigma_rotation_deg);
     let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
     summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
     // One model at a time per thread: a keyframe's model is built once and every keyframe

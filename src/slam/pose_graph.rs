@@ -94,10 +94,7 @@ pub struct Edge {
 /// An edge's information from the standard deviations of its translation (metres) and
 /// rotation (degrees).
 pub fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
-    let it = 1.0 / (sigma_translation * sigma_translation);
-    let sr = sigma_rotation_deg.to_radians();
-    let ir = 1.0 / (sr * sr);
-    Vector6::new(it, it, it, ir, ir, ir)
+    sqrt_information(sigma_translation, sigma_rotation_deg).map(|w| w * w)
 }
 
 /// The square root of [`information`]: one over the standard deviations.

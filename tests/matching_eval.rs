@@ -38,11 +38,29 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
         assert!(within.windows(2).all(|w| w[0] <= w[1]));
         assert!((within[1] - c.accuracy).abs() < 1e-9);
         assert_eq!(c.pnp_failures, 0);
+        // Keypoints found again within 3 px of their true position in the other image,
+        // and correct matches per visible keypoint: printed to record the measured values.
+        eprintln!(
+            "repeatability {:.3}, matching score {:.3}",
+            c.repeatability, c.matching_score
+        );
+        assert!(
+            c.repeatability > 0.2 && c.repeatability < 1.0,
+            "{}",
+            c.repeatability
+        );
+        assert!(
+            c.matching_score > 0.05 && c.matching_score < 1.0,
+            "{}",
+            c.matching_score
+        );
     }
     assert!(report.fpfdcnn_range.is_none());
     let picture = picture.expect("picture of the middle pair");
     assert_eq!(picture.width(), 2 * 640);
-    assert!(markdown(&report).contains("| Clear | ORB + BF matcher |"));
+    let table = markdown(&report);
+    assert!(table.contains("| Clear | ORB + BF matcher |"));
+    assert!(table.contains("repeatability (3 px) | matching score"));
 }
 
 /// The CLI evaluates the bundled FPFDCNN by default (when the crate has it), `--orb-only`

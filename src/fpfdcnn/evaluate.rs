@@ -16,7 +16,9 @@ use crate::error::{Error, Result};
 use crate::features::bf_matcher::matched_pixels;
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
-use crate::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, match_errors};
+use crate::metrics::matching::{
+    CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, match_errors, repeatability,
+};
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
 use crate::range_matcher::{GuideConfig, RangeMatcherConfig, guided_range_match, range_match};
@@ -83,6 +85,15 @@ pub struct ConditionResult {
     /// wrong partners.
     #[serde(default)]
     pub within_px: Vec<(f64, f64)>,
+    /// Keypoint repeatability within 3 px, both directions pooled
+    /// ([`crate::metrics::matching::Repeatability`]): how many keypoints the other image
+    /// detects again, whatever their descriptors.
+    #[serde(default)]
+    pub repeatability: f64,
+    /// Correct matches per keypoint visible in the other image (SuperPoint's matching
+    /// score: detector, descriptor and matcher together).
+    #[serde(default)]
+    pub matching_score: f64,
 }
 
 /// One method's results.
@@ -121,6 +132,7 @@ struct Acc {
     keypoints: usize,
     images: usize,
     errors: Vec<f64>,
+    repeat: Vec<Repeatability>,
 }
 
 impl Acc {
@@ -128,7 +140,11 @@ impl Acc {
         let pooled = MatchingAccuracy::pool(&self.acc);
         let pose = PoseError::pool(&self.segs).ok();
         let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+        let repeat = Repeatability::pool(&self.repeat);
         ConditionResult {
+            repeatability: repeat.rate(),
+            // Visible keypoints counted in both directions: per image, half of them.
+            matching_score: pooled.correct as f64 / (repeat.visible as f64 / 2.0).max(1.0),
             correct: pooled.correct,
             matches: pooled.matches,
             accuracy: pooled.accuracy,
@@ -153,12 +169,30 @@ impl Acc {
 pub type PixelMatches = Vec<(Point2<f64>, Point2<f64>)>;
 
 /// ORB keypoints of both images matched by cross-checked brute force (Hamming), and the
-/// number of keypoints found in the two.
-pub fn orb_matches(a: &GrayImage, b: &GrayImage, cfg: &OrbConfig) -> Result<(PixelMatches, usize)> {
+/// keypoints of the two.
+pub fn orb_matches(
+    a: &GrayImage,
+    b: &GrayImage,
+    cfg: &OrbConfig,
+) -> Result<(PixelMatches, [Vec<Point2<f64>>; 2])> {
     let fa = detect_and_compute(a, cfg)?;
     let fb = detect_and_compute(b, cfg)?;
     let m = matched_pixels(&fa, &fb);
-    Ok((m, fa.len() + fb.len()))
+    let pixels = |f: &crate::features::orb::OrbFeatures| {
+        f.keypoints
+            .iter()
+            .map(|k| Point2::new(k.x as f64, k.y as f64))
+            .collect()
+    };
+    Ok((m, [pixels(&fa), pixels(&fb)]))
+}
+
+/// Keypoint pixels of FPFDCNN features.
+fn pixels(f: &Features) -> Vec<Point2<f64>> {
+    f.points
+        .iter()
+        .map(|p| Point2::new(p[0] as f64, p[1] as f64))
+        .collect()
 }
 
 /// FPFDCNN keypoints of both images matched by the range matcher (eq 8), its windows
@@ -188,6 +222,7 @@ pub fn fpfdcnn_matches(
 /// A frame pair with its ground truth, for scoring matches.
 struct PairGt<'a> {
     a: &'a Frame,
+    b: &'a Frame,
     pose_a: Pose,
     pose_b: Pose,
     cam: &'a Camera,
@@ -199,11 +234,12 @@ struct PairGt<'a> {
 fn score(
     acc: &mut Acc,
     matches: &PixelMatches,
-    keypoints: usize,
+    [points_a, points_b]: &[Vec<Point2<f64>>; 2],
     gt: &PairGt<'_>,
 ) -> Result<Vec<Option<f64>>> {
     let PairGt {
         a,
+        b,
         pose_a,
         pose_b,
         cam,
@@ -221,8 +257,12 @@ fn score(
         judged.len(),
     ));
     acc.errors.extend(&judged);
-    acc.keypoints += keypoints;
+    acc.keypoints += points_a.len() + points_b.len();
     acc.images += 2;
+    if b.depth.is_some() {
+        acc.repeat
+            .push(repeatability(cam, a, b, points_a, points_b, REPEATED_PX)?);
+    }
     let (mut pts, mut px) = (Vec::new(), Vec::new());
     for (pa, pb) in matches {
         if let Some(z) = depth.at(pa.x, pa.y) {
@@ -299,6 +339,7 @@ pub fn evaluate(
         let clean = (GrayF32::from_rgb(&a.rgb), GrayF32::from_rgb(&b.rgb));
         let pgt = PairGt {
             a: &a,
+            b: &b,
             pose_a,
             pose_b,
             cam,
@@ -316,7 +357,7 @@ pub fn evaluate(
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
             let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
-            let errs = score(&mut orb[c], &m, kp, &pgt)?;
+            let errs = score(&mut orb[c], &m, &kp, &pgt)?;
             let blurred = if c == 0 { "" } else { ", blurred" };
             if picture_pair {
                 rows.push((
@@ -330,7 +371,7 @@ pub fn evaluate(
             if let Some(det) = detector {
                 let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
                 let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
-                let errs = score(&mut net[c], &m, fa.len() + fb.len(), &pgt)?;
+                let errs = score(&mut net[c], &m, &[pixels(&fa), pixels(&fb)], &pgt)?;
                 if picture_pair {
                     rows.push((ga, gb, m, errs, format!("FPFDCNN + range{blurred}")));
                 }
@@ -470,7 +511,7 @@ pub fn markdown(r: &MatchingReport) -> String {
         format!("; FPFDCNN keypoints: {}", r.fpfdcnn_detector)
     };
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px |\n|---|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px | repeatability (3 px) | matching score |\n|---|---|---|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,
@@ -486,7 +527,7 @@ pub fn markdown(r: &MatchingReport) -> String {
     }
     let row = |s: &mut String, scen: &str, name: &str, c: &ConditionResult| {
         s.push_str(&format!(
-            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} | {} |\n",
+            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} | {} | {:.1} % | {:.1} % |\n",
             100.0 * c.accuracy,
             c.correct,
             c.matches,
@@ -495,7 +536,9 @@ pub fn markdown(r: &MatchingReport) -> String {
                 .iter()
                 .map(|(_, f)| format!("{:.0}", 100.0 * f))
                 .collect::<Vec<_>>()
-                .join(" / ")
+                .join(" / "),
+            100.0 * c.repeatability,
+            100.0 * c.matching_score,
         ));
     };
     for (name, m) in &methods {

@@ -5,9 +5,10 @@
 //! depth reading cannot be judged and are not counted.
 
 use crate::camera::Camera;
-use crate::dataset::fp_pairs::transfer;
+use crate::dataset::fp_pairs::{FpConfig, map_corners, transfer};
 use crate::dataset::{DepthImage, Frame};
 use crate::error::{Error, Result};
+use crate::features::harris::Keypoint;
 use crate::geometry::Pose;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
@@ -129,6 +130,72 @@ pub fn frame_pair_accuracy(
     )
 }
 
+/// Radius of keypoint repeatability, pixels (SuperPoint's ε = 3).
+pub const REPEATED_PX: f64 = 3.0;
+
+/// Keypoint repeatability (Schmid, Mohr and Bauckhage 2000; SuperPoint's measure, DeTone et
+/// al. 2018) pooled over both directions of frame pairs: a keypoint of one image is
+/// *visible* when ground truth (its depth, both poses) carries it inside the other image
+/// onto a surface that image's depth confirms (the FP pairs' occlusion check, eq 7), and
+/// *repeated* when the other image has a keypoint within [`REPEATED_PX`] of it. Repeatability
+/// bounds what any descriptor can match; correct matches per visible keypoint (the
+/// matching score) measure detector and descriptor together.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Repeatability {
+    pub repeated: usize,
+    pub visible: usize,
+}
+
+impl Repeatability {
+    /// `repeated / visible` (0 when nothing is visible).
+    pub fn rate(&self) -> f64 {
+        self.repeated as f64 / self.visible.max(1) as f64
+    }
+
+    /// Sums of counts.
+    pub fn pool(items: &[Repeatability]) -> Self {
+        Repeatability {
+            repeated: items.iter().map(|r| r.repeated).sum(),
+            visible: items.iter().map(|r| r.visible).sum(),
+        }
+    }
+}
+
+/// [`Repeatability`] of two images' keypoints, A to B and B to A, within `tolerance_px`.
+/// Both frames need depth and ground-truth poses.
+pub fn repeatability(
+    camera: &Camera,
+    a: &Frame,
+    b: &Frame,
+    points_a: &[Point2<f64>],
+    points_b: &[Point2<f64>],
+    tolerance_px: f64,
+) -> Result<Repeatability> {
+    let cfg = FpConfig::default();
+    let keypoints = |p: &[Point2<f64>]| -> Vec<Keypoint> {
+        p.iter()
+            .map(|p| Keypoint {
+                x: p.x as f32,
+                y: p.y as f32,
+                score: 0.0,
+            })
+            .collect()
+    };
+    let mut r = Repeatability::default();
+    for (from, to, p_from, p_to) in [(a, b, points_a, points_b), (b, a, points_b, points_a)] {
+        let carried = map_corners(camera, from, to, keypoints(p_from), &cfg)?;
+        let t2 = tolerance_px * tolerance_px;
+        for m in &carried.matches {
+            let q = Point2::new(m.b[0] as f64, m.b[1] as f64);
+            r.visible += 1;
+            if p_to.iter().any(|p| (p - q).norm_squared() <= t2) {
+                r.repeated += 1;
+            }
+        }
+    }
+    Ok(r)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -169,6 +236,69 @@ mod tests {
         assert!(matching_accuracy(&matches, &depth, &cam, &pose_a, &pose_b, 0.0).is_err());
         let small = DepthImage::new(320, 240);
         assert!(match_errors(&matches, &small, &cam, &pose_a, &pose_b).is_err());
+    }
+
+    #[test]
+    fn repeatability_counts_visible_keypoints_found_again() {
+        let cam = Camera::tum_fr1();
+        let frame = |index: usize, pose: Pose, near: bool| {
+            let mut depth = DepthImage::new(640, 480);
+            depth.data.iter_mut().for_each(|d| *d = 2.0);
+            if near {
+                // A box 0.5 m in front of the wall hides pixels x >= 600 of B.
+                for y in 0..480 {
+                    for x in 600..640 {
+                        depth.data[y * 640 + x] = 1.5;
+                    }
+                }
+            }
+            Frame {
+                index,
+                stamp: index as f64,
+                rgb: image::RgbImage::new(640, 480),
+                depth: Some(depth),
+                gt_pose: Some(pose),
+            }
+        };
+        let pose_b = Pose::from_parts(
+            Translation3::new(0.05, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        let (a, b) = (frame(0, Pose::identity(), false), frame(1, pose_b, true));
+        let carry = |u: f64, v: f64| {
+            transfer(&cam, &Point2::new(u, v), 2.0, &Pose::identity(), &pose_b)
+                .unwrap()
+                .0
+        };
+        let points_a = vec![
+            Point2::new(300.0, 200.0), // found again 2 px away
+            Point2::new(400.0, 300.0), // not found (4 px away)
+            Point2::new(5.0, 240.0),   // carried outside B: not visible
+        ];
+        let points_b = vec![
+            carry(300.0, 200.0) + Vector2::new(2.0, 0.0),
+            carry(400.0, 300.0) + Vector2::new(0.0, 4.0),
+            Point2::new(620.0, 240.0), // on B's box: A sees the wall there, hidden
+        ];
+        let r = repeatability(&cam, &a, &b, &points_a, &points_b, REPEATED_PX).unwrap();
+        // A to B: two visible, one repeated. B to A: the first two visible (both have an A
+        // keypoint within 3 px? the second is 4 px away: no), the third occluded.
+        assert_eq!((r.visible, r.repeated), (4, 2), "{r:?}");
+        assert!((r.rate() - 0.5).abs() < 1e-12);
+        let pooled = Repeatability::pool(&[
+            r,
+            Repeatability {
+                repeated: 1,
+                visible: 4,
+            },
+        ]);
+        assert_eq!((pooled.repeated, pooled.visible), (3, 8));
+        assert_eq!(Repeatability::default().rate(), 0.0);
+        let no_depth = Frame {
+            depth: None,
+            ..b.clone()
+        };
+        assert!(repeatability(&cam, &a, &no_depth, &points_a, &points_b, 3.0).is_err());
     }
 
     #[test]

@@ -58,7 +58,18 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
     assert!(report.fpfdcnn_range.is_none());
     let picture = picture.expect("picture of the middle pair");
     assert_eq!(picture.width(), 2 * 640);
+    // The FP pairs' Harris corners (FPFDCNN's detector targets), clear and blurred.
+    assert_eq!(report.harris_repeatability.len(), 2);
+    assert!(
+        report
+            .harris_repeatability
+            .iter()
+            .all(|r| *r > 0.05 && *r < 1.0),
+        "{:?}",
+        report.harris_repeatability
+    );
     let table = markdown(&report);
+    assert!(table.contains("strongest Harris corners"));
     assert!(table.contains("| Clear | ORB + BF matcher |"));
     assert!(table.contains("repeatability (3 px) | matching score"));
 }

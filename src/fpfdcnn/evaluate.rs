@@ -10,10 +10,12 @@
 
 use super::inference::{Features, FpfdcnnDetector};
 use crate::camera::Camera;
+use crate::dataset::fp_pairs::FpConfig;
 use crate::dataset::photometric::Degradation;
 use crate::dataset::tum::{Frame, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::bf_matcher::matched_pixels;
+use crate::features::harris::harris_corners;
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
@@ -120,6 +122,11 @@ pub struct MatchingReport {
     pub orb_bf: MethodResult,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fpfdcnn_range: Option<MethodResult>,
+    /// Repeatability (3 px) of the strongest Harris corners, as many as each method's
+    /// keypoints, with the FP pairs' Harris settings: the corners FPFDCNN's detector is
+    /// trained to reproduce (clear, then blurred when evaluated).
+    #[serde(default)]
+    pub harris_repeatability: Vec<f64>,
 }
 
 #[derive(Default)]
@@ -324,6 +331,11 @@ pub fn evaluate(
     let conditions = if cfg.blur.is_some() { 2 } else { 1 };
     let mut orb: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
     let mut net: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
+    let mut harris: Vec<Vec<Repeatability>> = vec![Vec::new(); conditions];
+    let harris_cfg = crate::features::harris::HarrisConfig {
+        max_corners: cfg.orb.n_features,
+        ..FpConfig::default().harris
+    };
     let mut picture = None;
     let mut used = Vec::new();
     for (k, &(i, j)) in pairs.iter().enumerate() {
@@ -356,6 +368,16 @@ pub fn evaluate(
                 ),
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
+            if b.depth.is_some() {
+                let corners = |g: &GrayImage| -> Vec<Point2<f64>> {
+                    harris_corners(&GrayF32::from_gray(g), &harris_cfg)
+                        .iter()
+                        .map(|k| Point2::new(k.x as f64, k.y as f64))
+                        .collect()
+                };
+                let (ca, cb) = (corners(&ga), corners(&gb));
+                harris[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
+            }
             let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
             let errs = score(&mut orb[c], &m, &kp, &pgt)?;
             let blurred = if c == 0 { "" } else { ", blurred" };
@@ -401,6 +423,10 @@ pub fn evaluate(
                 .unwrap_or_default(),
             orb_bf: finish(orb),
             fpfdcnn_range: detector.map(|_| finish(net)),
+            harris_repeatability: harris
+                .iter()
+                .map(|r| Repeatability::pool(r).rate())
+                .collect(),
         },
         picture,
     ))
@@ -548,6 +574,18 @@ pub fn markdown(r: &MatchingReport) -> String {
         if let Some(b) = &m.blurred {
             row(&mut s, "Blurred", name, b);
         }
+    }
+    if !r.harris_repeatability.is_empty() {
+        let rates: Vec<String> = r
+            .harris_repeatability
+            .iter()
+            .map(|v| format!("{:.1} %", 100.0 * v))
+            .collect();
+        s.push_str(&format!(
+            "\nRepeatability (3 px) of the strongest Harris corners, FPFDCNN's detector targets: {} ({}).\n",
+            rates.join(" / "),
+            if rates.len() > 1 { "clear / blurred" } else { "clear" }
+        ));
     }
     s.push_str("\n| Scenario | Method | errT (%) | errR (deg/m) | rotation error (deg) | translation error (mm) | PnP failures |\n|---|---|---|---|---|---|---|\n");
     let f = |v: Option<f64>, k: f64, d: usize| {

@@ -75,7 +75,8 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
 }
 
 /// The CLI evaluates the bundled FPFDCNN by default (when the crate has it), `--orb-only`
-/// skips it, and a bad ratio is an error before any pair is read.
+/// skips it, and a bad ratio, warp count, Harris window or pyramid is an error before any
+/// pair is read.
 #[test]
 fn cli_defaults_and_bad_options() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -115,5 +116,23 @@ fn cli_defaults_and_bad_options() {
     let o = run(&["--orb-only", "--ratio", "0"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--ratio must be a positive number"));
+    // Homographic adaptation of the Harris targets: measured when asked for, bounded.
+    let o = run(&["--orb-only", "--adapted-harris", "2", "--orb-levels", "3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let adapted = read()["adapted_repeatability"].as_array().unwrap().len();
+    assert_eq!(adapted, 1);
+    for (bad, says) in [
+        (
+            ["--adapted-harris", "100000"],
+            "--adapted-harris: adaptation warps",
+        ),
+        (["--harris-sigma", "0"], "--harris-sigma: harris sigma"),
+        (["--orb-levels", "0"], "pyramid levels"),
+    ] {
+        let o = run(&[&["--orb-only"][..], &bad[..]].concat());
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(says), "{err}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

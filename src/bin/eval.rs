@@ -131,6 +131,18 @@ struct MatchingArgs {
     /// probable, ORB the strongest FAST corners over its pyramid).
     #[arg(long, default_value_t = 500)]
     keypoints: usize,
+    /// Also measure the repeatability of Harris corners after homographic adaptation over
+    /// this many random warps of each image (SuperPoint's recipe; candidate FPFDCNN detector
+    /// targets; 0: not measured).
+    #[arg(long, default_value_t = 0)]
+    adapted_harris: usize,
+    /// Gaussian window of the Harris corners whose repeatability is measured, pixels (the
+    /// FP pairs' 1.5).
+    #[arg(long, default_value_t = 1.5)]
+    harris_sigma: f32,
+    /// ORB pyramid levels (OpenCV's 8; 1: FAST corners at full resolution only).
+    #[arg(long, default_value_t = 8)]
+    orb_levels: usize,
     /// Write the figures as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -229,6 +241,15 @@ fn matching(a: MatchingArgs) -> Result<()> {
         "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
         a.ratio_exclusion
     );
+    let adaptation =
+        (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
+            warps: a.adapted_harris,
+            ..Default::default()
+        });
+    if let Some(ad) = &adaptation {
+        ad.validate()
+            .map_err(|m| anyhow::anyhow!("--adapted-harris: {m}"))?;
+    }
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::load(&a.camera)?;
     let weights = match (&a.fpfdcnn, a.orb_only) {
@@ -267,9 +288,16 @@ fn matching(a: MatchingArgs) -> Result<()> {
             .as_deref()
             .map(sdf_slam::dataset::photometric::Degradation::parse)
             .transpose()?,
+        adaptation,
         ..Default::default()
     };
     cfg.orb.n_features = a.keypoints;
+    cfg.orb.n_levels = a.orb_levels;
+    cfg.orb.validate()?;
+    cfg.harris.sigma = a.harris_sigma;
+    cfg.harris
+        .validate()
+        .map_err(|m| anyhow::anyhow!("--harris-sigma: {m}"))?;
     cfg.range.window = a.window;
     cfg.range.mutual = !a.no_mutual;
     cfg.range.ratio = (a.ratio < 1.0).then_some(a.ratio);

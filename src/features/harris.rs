@@ -101,13 +101,19 @@ pub fn harris_response(img: &GrayF32, cfg: &HarrisConfig) -> GrayF32 {
 
 /// Harris corners: thresholded, non-maximum suppressed, strongest first.
 pub fn harris_corners(img: &GrayF32, cfg: &HarrisConfig) -> Vec<Keypoint> {
-    let r = harris_response(img, cfg);
+    corners_of_response(&harris_response(img, cfg), cfg)
+}
+
+/// The corners of a response map as [`harris_corners`] selects them: above
+/// `relative_threshold` of the maximum, local maxima within `nms_radius`, away from the
+/// border, the strongest `max_corners`.
+pub fn corners_of_response(r: &GrayF32, cfg: &HarrisConfig) -> Vec<Keypoint> {
     let max = r.data.iter().copied().fold(0.0f32, f32::max);
     if max <= 0.0 {
         return Vec::new();
     }
     let thr = max * cfg.relative_threshold;
-    let (w, h, rad, b) = (img.width, img.height, cfg.nms_radius as isize, cfg.border);
+    let (w, h, rad, b) = (r.width, r.height, cfg.nms_radius as isize, cfg.border);
     let mut out = Vec::new();
     for y in b..h.saturating_sub(b) {
         for x in b..w.saturating_sub(b) {

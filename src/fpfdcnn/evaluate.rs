@@ -15,7 +15,7 @@ use crate::dataset::photometric::Degradation;
 use crate::dataset::tum::{Frame, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::bf_matcher::matched_pixels;
-use crate::features::harris::harris_corners;
+use crate::features::harris::{HarrisConfig, harris_corners};
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
@@ -49,6 +49,12 @@ pub struct MatchingEvalConfig {
     /// ([`crate::range_matcher::guided_range_match`]); `None`: at the keypoint (the paper).
     pub guide: Option<GuideConfig>,
     pub pnp: PnpConfig,
+    /// Also measure the repeatability of Harris corners after homographic adaptation
+    /// ([`super::adaptation`]).
+    pub adaptation: Option<super::adaptation::AdaptationConfig>,
+    /// Harris settings of the targets' repeatability (the FP pairs' by default; as many
+    /// corners as ORB keypoints are kept).
+    pub harris: HarrisConfig,
 }
 
 impl Default for MatchingEvalConfig {
@@ -63,6 +69,8 @@ impl Default for MatchingEvalConfig {
             range: RangeMatcherConfig::default(),
             guide: None,
             pnp: PnpConfig::default(),
+            adaptation: None,
+            harris: FpConfig::default().harris,
         }
     }
 }
@@ -127,6 +135,9 @@ pub struct MatchingReport {
     /// trained to reproduce (clear, then blurred when evaluated).
     #[serde(default)]
     pub harris_repeatability: Vec<f64>,
+    /// The same for Harris corners after homographic adaptation, when asked for.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub adapted_repeatability: Vec<f64>,
 }
 
 #[derive(Default)]
@@ -332,9 +343,10 @@ pub fn evaluate(
     let mut orb: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
     let mut net: Vec<Acc> = (0..conditions).map(|_| Acc::default()).collect();
     let mut harris: Vec<Vec<Repeatability>> = vec![Vec::new(); conditions];
-    let harris_cfg = crate::features::harris::HarrisConfig {
+    let mut adapted: Vec<Vec<Repeatability>> = vec![Vec::new(); conditions];
+    let harris_cfg = HarrisConfig {
         max_corners: cfg.orb.n_features,
-        ..FpConfig::default().harris
+        ..cfg.harris.clone()
     };
     let mut picture = None;
     let mut used = Vec::new();
@@ -377,6 +389,16 @@ pub fn evaluate(
                 };
                 let (ca, cb) = (corners(&ga), corners(&gb));
                 harris[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
+                if let Some(ad) = &cfg.adaptation {
+                    let corners = |g: &GrayImage| -> Vec<Point2<f64>> {
+                        super::adaptation::adapted_corners(&GrayF32::from_gray(g), &harris_cfg, ad)
+                            .iter()
+                            .map(|k| Point2::new(k.x as f64, k.y as f64))
+                            .collect()
+                    };
+                    let (ca, cb) = (corners(&ga), corners(&gb));
+                    adapted[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
+                }
             }
             let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
             let errs = score(&mut orb[c], &m, &kp, &pgt)?;
@@ -427,6 +449,13 @@ pub fn evaluate(
                 .iter()
                 .map(|r| Repeatability::pool(r).rate())
                 .collect(),
+            adapted_repeatability: match cfg.adaptation {
+                Some(_) => adapted
+                    .iter()
+                    .map(|r| Repeatability::pool(r).rate())
+                    .collect(),
+                None => Vec::new(),
+            },
         },
         picture,
     ))
@@ -575,16 +604,31 @@ pub fn markdown(r: &MatchingReport) -> String {
             row(&mut s, "Blurred", name, b);
         }
     }
-    if !r.harris_repeatability.is_empty() {
-        let rates: Vec<String> = r
-            .harris_repeatability
+    for (rates, what) in [
+        (
+            &r.harris_repeatability,
+            "the strongest Harris corners, FPFDCNN's detector targets",
+        ),
+        (
+            &r.adapted_repeatability,
+            "Harris corners after homographic adaptation",
+        ),
+    ] {
+        if rates.is_empty() {
+            continue;
+        }
+        let rates: Vec<String> = rates
             .iter()
             .map(|v| format!("{:.1} %", 100.0 * v))
             .collect();
         s.push_str(&format!(
-            "\nRepeatability (3 px) of the strongest Harris corners, FPFDCNN's detector targets: {} ({}).\n",
+            "\nRepeatability (3 px) of {what}: {} ({}).\n",
             rates.join(" / "),
-            if rates.len() > 1 { "clear / blurred" } else { "clear" }
+            if rates.len() > 1 {
+                "clear / blurred"
+            } else {
+                "clear"
+            }
         ));
     }
     s.push_str("\n| Scenario | Method | errT (%) | errR (deg/m) | rotation error (deg) | translation error (mm) | PnP failures |\n|---|---|---|---|---|---|---|\n");

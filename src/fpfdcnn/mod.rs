@@ -1,5 +1,6 @@
 //! FPFDCNN, the keypoint detector/descriptor of SDF-SLAM (Section IV-B, Table 12).
 
+pub mod adaptation;
 mod config;
 pub mod data;
 pub mod evaluate;

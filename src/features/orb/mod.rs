@@ -72,7 +72,8 @@ impl Default for OrbConfig {
 }
 
 impl OrbConfig {
-    fn validate(&self) -> Result<()> {
+    /// Checks the settings before anything is allocated; the message names the field.
+    pub fn validate(&self) -> Result<()> {
         if !(self.scale_factor.is_finite() && self.scale_factor > 1.0) {
             return Err(Error::msg(format!(
                 "ORB scale factor must be a number above 1, got {}",

@@ -8,6 +8,7 @@
 //! distortion, ground-truth poses interpolated at the image timestamps); matches
 //! whose A keypoint has no depth are not counted.
 
+use super::adaptation::adapted_corners;
 use super::inference::{Features, FpfdcnnDetector};
 use crate::camera::Camera;
 use crate::dataset::fp_pairs::FpConfig;
@@ -15,7 +16,7 @@ use crate::dataset::photometric::Degradation;
 use crate::dataset::tum::{Frame, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::bf_matcher::matched_pixels;
-use crate::features::harris::{HarrisConfig, harris_corners};
+use crate::features::harris::{HarrisConfig, Keypoint, harris_corners};
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
@@ -50,7 +51,8 @@ pub struct MatchingEvalConfig {
     pub guide: Option<GuideConfig>,
     pub pnp: PnpConfig,
     /// Also measure the repeatability of Harris corners after homographic adaptation
-    /// ([`super::adaptation`]).
+    /// ([`super::adaptation`]: a pixel is averaged over the views it lies in, and a view's
+    /// clamped borders reach only pixels near the frame's edge, inside the Harris border).
     pub adaptation: Option<super::adaptation::AdaptationConfig>,
     /// Harris settings of the targets' repeatability (the FP pairs' by default; as many
     /// corners as ORB keypoints are kept).
@@ -203,6 +205,13 @@ pub fn orb_matches(
             .collect()
     };
     Ok((m, [pixels(&fa), pixels(&fb)]))
+}
+
+/// Pixels of corners.
+fn corner_pixels(k: &[Keypoint]) -> Vec<Point2<f64>> {
+    k.iter()
+        .map(|k| Point2::new(k.x as f64, k.y as f64))
+        .collect()
 }
 
 /// Keypoint pixels of FPFDCNN features.
@@ -381,22 +390,19 @@ pub fn evaluate(
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
             if b.depth.is_some() {
-                let corners = |g: &GrayImage| -> Vec<Point2<f64>> {
-                    harris_corners(&GrayF32::from_gray(g), &harris_cfg)
-                        .iter()
-                        .map(|k| Point2::new(k.x as f64, k.y as f64))
-                        .collect()
-                };
-                let (ca, cb) = (corners(&ga), corners(&gb));
+                let (fa, fb) = (GrayF32::from_gray(&ga), GrayF32::from_gray(&gb));
+                let (ca, cb) = (
+                    harris_corners(&fa, &harris_cfg),
+                    harris_corners(&fb, &harris_cfg),
+                );
+                let (ca, cb) = (corner_pixels(&ca), corner_pixels(&cb));
                 harris[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
                 if let Some(ad) = &cfg.adaptation {
-                    let corners = |g: &GrayImage| -> Vec<Point2<f64>> {
-                        super::adaptation::adapted_corners(&GrayF32::from_gray(g), &harris_cfg, ad)
-                            .iter()
-                            .map(|k| Point2::new(k.x as f64, k.y as f64))
-                            .collect()
-                    };
-                    let (ca, cb) = (corners(&ga), corners(&gb));
+                    let (ca, cb) = (
+                        adapted_corners(&fa, &harris_cfg, ad),
+                        adapted_corners(&fb, &harris_cfg, ad),
+                    );
+                    let (ca, cb) = (corner_pixels(&ca), corner_pixels(&cb));
                     adapted[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
                 }
             }

@@ -127,6 +127,13 @@ struct MatchingArgs {
     /// (half-cell shifts; each placement is one more network pass).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
+    /// FPFDCNN pyramid levels (1: the image as it is; ORB's 8 share `--keypoints` out over
+    /// levels by their side).
+    #[arg(long, default_value_t = 1)]
+    levels: usize,
+    /// Ratio of the sides of consecutive FPFDCNN pyramid levels.
+    #[arg(long, default_value_t = 1.2)]
+    level_factor: f32,
     /// Keypoints per image, for both methods (the paper: 500; FPFDCNN keeps the most
     /// probable, ORB the strongest FAST corners over its pyramid).
     #[arg(long, default_value_t = 500)]
@@ -270,6 +277,8 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 input_scale: a.fpfdcnn_scale,
                 subpixel_radius: a.subpixel,
                 grid_shifts: a.grid_shifts,
+                levels: a.levels,
+                level_factor: a.level_factor,
                 nms_radius: a.nms,
                 smoothing: a.smoothing,
                 top_k: a.keypoints,

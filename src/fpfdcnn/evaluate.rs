@@ -552,6 +552,12 @@ pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
             cfg.grid_shifts
         ));
     }
+    if cfg.levels > 1 {
+        s.push_str(&format!(
+            ", {} pyramid levels x{}",
+            cfg.levels, cfg.level_factor
+        ));
+    }
     if cfg.smoothing > 0.0 {
         s.push_str(&format!(", smoothed {} px", cfg.smoothing));
     }

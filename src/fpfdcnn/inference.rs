@@ -48,6 +48,14 @@ pub struct DetectorConfig {
     /// detector predicts a cell's 256 sub-pixel probabilities from that cell's features,
     /// so its map carries the grid; other placements average that out.
     pub grid_shifts: usize,
+    /// Detect on this many levels of an image pyramid (1: the image as it is), each level
+    /// [`Self::level_factor`] smaller than the one before, keypoints reported in the
+    /// original image's pixels. As ORB does, `top_k` is shared out over the levels in
+    /// proportion to each level's side (ORB-SLAM's and OpenCV's rule), and a scene corner
+    /// found on several levels is kept once per level with that level's descriptor.
+    pub levels: usize,
+    /// Ratio of the sides of consecutive pyramid levels (> 1).
+    pub level_factor: f32,
 }
 
 impl DetectorConfig {
@@ -77,6 +85,18 @@ impl DetectorConfig {
                 self.grid_shifts
             ));
         }
+        if !(1..=MAX_LEVELS).contains(&self.levels) {
+            return Err(format!(
+                "levels must be in [1, {MAX_LEVELS}], got {}",
+                self.levels
+            ));
+        }
+        if !(self.level_factor.is_finite() && self.level_factor > 1.0 && self.level_factor <= 4.0) {
+            return Err(format!(
+                "level_factor must be in (1, 4], got {}",
+                self.level_factor
+            ));
+        }
         if !(self.input_scale > 0.0 && self.input_scale <= 4.0) {
             return Err(format!(
                 "input_scale must be in (0, 4], got {}",
@@ -89,6 +109,9 @@ impl DetectorConfig {
 
 /// Upper bound of [`DetectorConfig::top_k`].
 pub const MAX_KEYPOINTS: usize = 100_000;
+
+/// Upper bound of [`DetectorConfig::levels`].
+pub const MAX_LEVELS: usize = 8;
 
 /// Default [`DetectorConfig::smoothing`].
 pub const DEFAULT_SMOOTHING: f32 = 2.0;
@@ -108,7 +131,28 @@ impl Default for DetectorConfig {
             input_scale: 1.0,
             subpixel_radius: 0,
             grid_shifts: DEFAULT_GRID_SHIFTS,
+            levels: 1,
+            level_factor: 1.2,
         }
+    }
+}
+
+impl DetectorConfig {
+    /// Keypoints each pyramid level keeps: ORB's split of `top_k`
+    /// ([`crate::features::orb::OrbConfig::features_per_level`]); all on every level when
+    /// `top_k` is 0.
+    pub fn level_quotas(&self) -> Vec<usize> {
+        let n = self.levels.max(1);
+        if self.top_k == 0 {
+            return vec![0; n];
+        }
+        crate::features::orb::OrbConfig {
+            n_features: self.top_k,
+            scale_factor: self.level_factor,
+            n_levels: n,
+            ..Default::default()
+        }
+        .features_per_level()
     }
 }
 
@@ -247,11 +291,23 @@ impl FpfdcnnDetector {
     /// grid placements also pad left and top); no keypoint is taken from the padding.
     pub fn detect(&self, gray: &GrayImage) -> Result<Features> {
         let s = self.config.input_scale;
-        let mut f = if s == 1.0 {
-            self.detect_at_native(gray)?
-        } else {
-            self.detect_scaled(gray, s)?
-        };
+        let mut f = Features::default();
+        for (level, top_k) in self.config.level_quotas().into_iter().enumerate() {
+            let scale = s / self.config.level_factor.powi(level as i32);
+            let too_small = (gray.width().min(gray.height()) as f32 * scale) < 32.0;
+            if level > 0 && ((top_k == 0 && self.config.top_k > 0) || too_small) {
+                continue;
+            }
+            let found = if scale == 1.0 {
+                self.detect_at_native(gray, top_k)?
+            } else {
+                self.detect_scaled(gray, scale, top_k)?
+            };
+            f.dim = found.dim;
+            f.points.extend(found.points);
+            f.scores.extend(found.scores);
+            f.descriptors.extend(found.descriptors);
+        }
         if self.config.subpixel_radius > 0 {
             use crate::features::subpix::{SubPixConfig, gradients, refine_corner};
             let cfg = SubPixConfig {
@@ -266,14 +322,14 @@ impl FpfdcnnDetector {
         Ok(f)
     }
 
-    fn detect_scaled(&self, gray: &GrayImage, s: f32) -> Result<Features> {
+    fn detect_scaled(&self, gray: &GrayImage, s: f32, top_k: usize) -> Result<Features> {
         let (w0, h0) = (gray.width(), gray.height());
         let (w, h) = (
             ((w0 as f32) * s).round().max(1.0) as u32,
             ((h0 as f32) * s).round().max(1.0) as u32,
         );
         let small = image::imageops::resize(gray, w, h, image::imageops::FilterType::Triangle);
-        let mut f = self.detect_at_native(&small)?;
+        let mut f = self.detect_at_native(&small, top_k)?;
         let (sx, sy) = (w0 as f32 / w as f32, h0 as f32 / h as f32);
         for p in f.points.iter_mut() {
             *p = [
@@ -335,7 +391,8 @@ impl FpfdcnnDetector {
         Ok((cropped, descriptors, [hp, wp]))
     }
 
-    fn detect_at_native(&self, gray: &GrayImage) -> Result<Features> {
+    /// One pyramid level: the `top_k` most probable keypoints of `gray` at its own size.
+    fn detect_at_native(&self, gray: &GrayImage, top_k: usize) -> Result<Features> {
         let (w, h) = (gray.width() as usize, gray.height() as usize);
         if w < 16 || h < 16 {
             return Err(Error::msg(format!(
@@ -361,7 +418,11 @@ impl FpfdcnnDetector {
         if sigma > 0.0 {
             cropped = cropped.gaussian_blur(sigma);
         }
-        let picks = select_keypoints(&cropped.data, w, h, &self.config);
+        let level = DetectorConfig {
+            top_k,
+            ..self.config.clone()
+        };
+        let picks = select_keypoints(&cropped.data, w, h, &level);
         let points: Vec<(usize, usize)> = picks.iter().map(|p| (p.0, p.1)).collect();
         let mut descriptors = Vec::with_capacity(points.len() * dim);
         if !points.is_empty() {
@@ -411,6 +472,8 @@ mod tests {
             subpixel_radius: 0,
             grid_shifts: 1,
             smoothing: 0.0,
+            levels: 1,
+            level_factor: 1.2,
         };
         let k = select_keypoints(&p, w, h, &cfg);
         assert_eq!(k, vec![(5, 5, 0.9), (12, 5, 0.7)]);
@@ -534,5 +597,71 @@ mod tests {
             ..DetectorConfig::default()
         };
         assert!(bad.validate().unwrap_err().contains("grid_shifts"));
+    }
+
+    #[test]
+    fn pyramid_levels_share_top_k_as_orb_does() {
+        let orb = DetectorConfig {
+            levels: 8,
+            level_factor: 1.2,
+            top_k: 500,
+            ..Default::default()
+        };
+        // OpenCV's ORB_create(500).
+        assert_eq!(orb.level_quotas(), vec![109, 90, 75, 63, 52, 44, 36, 31]);
+        let all = DetectorConfig { top_k: 0, ..orb };
+        assert_eq!(all.level_quotas(), vec![0; 8]);
+        assert_eq!(DetectorConfig::default().level_quotas(), vec![500]);
+        for (levels, factor) in [(0, 1.2), (MAX_LEVELS + 1, 1.2), (2, 1.0), (2, f32::NAN)] {
+            let bad = DetectorConfig {
+                levels,
+                level_factor: factor,
+                ..Default::default()
+            };
+            assert!(
+                bad.validate().unwrap_err().contains("level"),
+                "{levels} {factor}"
+            );
+        }
+    }
+
+    #[test]
+    fn pyramid_detection_keeps_the_first_level_and_adds_coarser_keypoints() {
+        let cfg = DetectorConfig {
+            threshold: 0.0,
+            top_k: 40,
+            grid_shifts: 1,
+            levels: 3,
+            level_factor: 1.5,
+            ..Default::default()
+        };
+        let det = random_detector(8, cfg.clone());
+        let (w, h) = (96u32, 80u32);
+        let img = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([((x * 53 + y * 29 + x * y) % 251) as u8])
+        });
+        let quotas = cfg.level_quotas();
+        assert_eq!(quotas.iter().sum::<usize>(), 40);
+        let pyramid = det.detect(&img).unwrap();
+        assert_eq!(pyramid.len(), 40);
+        let first = FpfdcnnDetector::new(
+            det.model.clone(),
+            det.device.clone(),
+            DetectorConfig {
+                levels: 1,
+                top_k: quotas[0],
+                ..cfg
+            },
+        )
+        .detect(&img)
+        .unwrap();
+        assert_eq!(pyramid.points[..quotas[0]], first.points[..]);
+        assert_eq!(pyramid.descriptors[..quotas[0] * 8], first.descriptors[..]);
+        for i in 0..pyramid.len() {
+            let [x, y] = pyramid.points[i];
+            assert!(x < w as f32 && y < h as f32);
+            let n: f32 = pyramid.descriptor(i).iter().map(|v| v * v).sum();
+            assert!((n - 1.0).abs() < 1e-4);
+        }
     }
 }

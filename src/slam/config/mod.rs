@@ -96,6 +96,7 @@ impl FeatureConfig {
             input_scale: self.fpfdcnn_input_scale,
             subpixel_radius: self.fpfdcnn_subpixel_radius,
             grid_shifts: self.fpfdcnn_grid_shifts,
+            ..DetectorConfig::default()
         }
     }
 

@@ -19,8 +19,9 @@ use super::sequence::{add_sequence, open_source};
 use crate::dataset::fp_pairs::{FpConfig, FpMatch};
 use crate::dataset::photometric::PhotometricAugment;
 use crate::error::{Error, Result};
-use crate::features::harris::HarrisConfig;
-use crate::raster::GrayF32;
+use crate::features::harris::{HarrisConfig, harris_corners};
+use crate::features::orb::{OrbConfig, detect_and_compute};
+use crate::raster::{GrayF32, gray_from_f32};
 use burn::prelude::*;
 use rand::seq::SliceRandom;
 use rayon::prelude::*;
@@ -75,8 +76,16 @@ pub struct FpDataConfig {
     pub val_pairs: usize,
     /// Frame pairs and ground-truth matching (gaps, Harris corners of A, occlusion test).
     pub pairs: FpConfig,
-    /// Harris corners of the resized training image: the detector targets.
+    /// Harris corners of the resized training image: the detector targets (with
+    /// `target_detector = "orb"`, `max_corners` is the number of ORB keypoints and the
+    /// other fields are unused).
     pub targets: HarrisConfig,
+    /// What marks the detector targets: the paper's single-scale Harris corners, or ORB's
+    /// detector (FAST corners ranked by their Harris response on each level of an
+    /// eight-level pyramid, OpenCV's defaults) in full-resolution pixels, whose keypoints
+    /// are found again far more often (README, *Where the deficit lies*). Descriptors are
+    /// trained on the FP pairs' Harris corners either way.
+    pub target_detector: TargetDetector,
     /// Share of each sequence's frames (the last ones) kept for validation; a sequence's own
     /// `val_fraction` overrides it.
     pub val_fraction: f64,
@@ -86,6 +95,17 @@ pub struct FpDataConfig {
     pub sampling: Sampling,
     /// The range of the homographies of homography pairs.
     pub homography: HomographyConfig,
+}
+
+/// The detector that marks FPFDCNN's detector targets ([`FpDataConfig::target_detector`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetDetector {
+    /// Harris corners with `[data.targets]` (the paper).
+    #[default]
+    Harris,
+    /// ORB's keypoints over its pyramid, `[data.targets] max_corners` of them.
+    Orb,
 }
 
 /// How a frame becomes a `height x width` training image.
@@ -128,6 +148,14 @@ impl FpDataConfig {
         self.targets
             .validate()
             .map_err(|m| format!("data.targets: {m}"))?;
+        if self.target_detector == TargetDetector::Orb
+            && !(1..=MAX_ORB_TARGETS).contains(&self.targets.max_corners)
+        {
+            return Err(format!(
+                "data.targets.max_corners must be in [1, {MAX_ORB_TARGETS}] with target_detector = \"orb\", got {}",
+                self.targets.max_corners
+            ));
+        }
         self.augment.validate().map_err(|m| format!("data.{m}"))?;
         self.homography
             .validate()
@@ -165,6 +193,9 @@ pub fn default_size() -> [usize; 2] {
     [240, 320]
 }
 
+/// Most ORB keypoints a frame may give as targets.
+const MAX_ORB_TARGETS: usize = 100_000;
+
 /// Largest training image side, pixels.
 const MAX_SIDE: usize = 4096;
 
@@ -182,11 +213,43 @@ impl Default for FpDataConfig {
                 border: 4,
                 ..HarrisConfig::default()
             },
+            target_detector: TargetDetector::default(),
             val_fraction: 0.15,
             augment: PhotometricAugment::default(),
             sampling: Sampling::default(),
             homography: HomographyConfig::default(),
         }
+    }
+}
+
+impl FpDataConfig {
+    /// The detector target pixels `(x, y)` of a training image.
+    pub fn target_pixels(&self, gray: &GrayF32) -> Result<Vec<(usize, usize)>> {
+        let pixel = |x: f32, y: f32| {
+            let clamp = |v: f32, n: usize| (v.round().max(0.0) as usize).min(n - 1);
+            (clamp(x, gray.width), clamp(y, gray.height))
+        };
+        Ok(match self.target_detector {
+            TargetDetector::Harris => harris_corners(gray, &self.targets)
+                .iter()
+                .map(|k| pixel(k.x, k.y))
+                .collect(),
+            TargetDetector::Orb => {
+                let cfg = OrbConfig {
+                    n_features: self.targets.max_corners,
+                    ..OrbConfig::default()
+                };
+                let mut p: Vec<_> = detect_and_compute(&gray_from_f32(gray), &cfg)?
+                    .keypoints
+                    .iter()
+                    .map(|k| pixel(k.x, k.y))
+                    .collect();
+                // Levels may put two keypoints on one pixel: one target.
+                p.sort_unstable_by_key(|&(x, y)| (y, x));
+                p.dedup();
+                p
+            }
+        })
     }
 }
 
@@ -756,5 +819,68 @@ mod tests {
         assert_eq!(batch.matches[0].len(), 60);
         let ta = batch.target_a.into_data().try_to_vec::<f32>().unwrap();
         assert_eq!(ta.iter().filter(|v| **v == 1.0).count(), 20);
+    }
+
+    #[test]
+    fn orb_targets_are_orb_keypoints_over_the_pyramid() {
+        let path =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let seq = crate::dataset::TumSequence::open(&path).unwrap();
+        let gray = GrayF32::from_gray(&seq.load_gray(0).unwrap());
+        let harris = FpDataConfig::default();
+        let orb = FpDataConfig {
+            target_detector: TargetDetector::Orb,
+            targets: HarrisConfig {
+                max_corners: 300,
+                ..harris.targets.clone()
+            },
+            ..Default::default()
+        };
+        let h = harris.target_pixels(&gray).unwrap();
+        let corners = harris_corners(&gray, &harris.targets);
+        assert_eq!(h.len(), corners.len());
+        assert!(
+            h.iter()
+                .zip(&corners)
+                .all(|(p, k)| p.0 as f32 == k.x && p.1 as f32 == k.y)
+        );
+        let o = orb.target_pixels(&gray).unwrap();
+        let cfg = OrbConfig {
+            n_features: 300,
+            ..Default::default()
+        };
+        let keypoints = detect_and_compute(&gray_from_f32(&gray), &cfg)
+            .unwrap()
+            .keypoints;
+        // Every keypoint, on whatever level, is a target at its full-resolution pixel.
+        assert!(o.len() > 200 && o.len() <= keypoints.len(), "{}", o.len());
+        for k in &keypoints {
+            let p = (k.x.round() as usize, k.y.round() as usize);
+            assert!(
+                o.binary_search_by_key(&(p.1, p.0), |&(x, y)| (y, x))
+                    .is_ok(),
+                "{p:?}"
+            );
+        }
+        // Keypoints from coarse levels: many targets are no Harris corner.
+        let far = o
+            .iter()
+            .filter(|p| {
+                !h.iter()
+                    .any(|q| p.0.abs_diff(q.0) <= 2 && p.1.abs_diff(q.1) <= 2)
+            })
+            .count();
+        assert!(far > o.len() / 4, "{far} of {}", o.len());
+        let none = FpDataConfig {
+            targets: HarrisConfig {
+                max_corners: 0,
+                ..harris.targets.clone()
+            },
+            ..orb.clone()
+        };
+        assert!(none.validate().unwrap_err().contains("max_corners"));
+        let parsed: FpDataConfig = toml::from_str("target_detector = \"orb\"").unwrap();
+        assert_eq!(parsed.target_detector, TargetDetector::Orb);
+        assert!(toml::from_str::<FpDataConfig>("target_detector = \"sift\"").is_err());
     }
 }

@@ -1,5 +1,5 @@
 //! One TUM-layout training sequence read into FPFDCNN's training and validation splits
-//! ([`FpDataset::build`]): its checks, its frames with their Harris targets, its posed pairs
+//! ([`FpDataset::build`]): its checks, its frames with their detector targets, its posed pairs
 //! with their ground-truth matches, its homography pairs and its repeats.
 
 use super::data::{FpDataConfig, FpDataset, FrameEntry, PairEntry, Sampling, SequenceSource};
@@ -8,7 +8,6 @@ use crate::camera::Camera;
 use crate::dataset::fp_pairs::{FpMatch, fp_pairs};
 use crate::dataset::tum::TumSequence;
 use crate::error::{Error, Result};
-use crate::features::harris::harris_corners;
 use crate::raster::GrayF32;
 use rayon::prelude::*;
 
@@ -87,7 +86,7 @@ pub(super) fn add_sequence(
     let n = seq.len();
     let val_fraction = src.val_fraction.unwrap_or(cfg.val_fraction);
     let cut = ((n as f64) * (1.0 - val_fraction)).round() as usize;
-    // Frames at the training resolution, with their Harris targets.
+    // Frames at the training resolution, with their detector targets.
     let offset_train = train.frames.len();
     let offset_val = val.frames.len();
     let (first_train_pair, first_val_pair) = (train.pairs.len(), val.pairs.len());
@@ -166,10 +165,7 @@ fn load_frames(
             } else {
                 resize_gray(&gray, width, height)
             };
-            let targets = harris_corners(&gray, &cfg.targets)
-                .iter()
-                .map(|k| (k.x as usize, k.y as usize))
-                .collect();
+            let targets = cfg.target_pixels(&gray)?;
             Ok(FrameEntry { gray, targets })
         })
         .collect()

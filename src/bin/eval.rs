@@ -127,6 +127,10 @@ struct MatchingArgs {
     /// (half-cell shifts; each placement is one more network pass).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
+    /// No FPFDCNN keypoint closer than this to the image border, pixels (ORB's edge
+    /// threshold keeps its keypoints 31 px in).
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::DetectorConfig::default().border)]
+    border: usize,
     /// FPFDCNN pyramid levels (1: the image as it is; ORB's 8 share `--keypoints` out over
     /// levels by their side).
     #[arg(long, default_value_t = 1)]
@@ -278,6 +282,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 subpixel_radius: a.subpixel,
                 grid_shifts: a.grid_shifts,
                 levels: a.levels,
+                border: a.border,
                 level_factor: a.level_factor,
                 nms_radius: a.nms,
                 smoothing: a.smoothing,

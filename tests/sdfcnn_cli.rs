@@ -110,6 +110,15 @@ fn train_then_eval_seg() {
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(v["images"], 3);
     assert!(v["mpa"].is_null() && v["depth"]["rms"].as_f64().unwrap() > 0.0);
+    // Each image's depth range, true against predicted.
+    let per_image = v["per_image"].as_array().expect("per_image");
+    assert_eq!(per_image.len(), 3);
+    for im in per_image {
+        for key in ["true_median_m", "predicted_median_m", "log_slope"] {
+            assert!(im[key].as_f64().is_some_and(f64::is_finite), "{key}: {im}");
+        }
+        assert!(im["true_median_m"].as_f64().unwrap() > 0.1, "{im}");
+    }
     for (args, want) in [
         (&[][..], "camera"),
         (

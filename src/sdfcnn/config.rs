@@ -46,6 +46,12 @@ pub struct SdfcnnTrainConfig {
     /// see [`super::imagenet`]). The optimizer starts afresh.
     #[serde(default)]
     pub init: Option<PathBuf>,
+    /// The encoder's learning rate (Layer1 … Layer7, the part `init` can take from
+    /// ImageNet) as a factor of the schedule's; the decoder and the judge layers take the
+    /// schedule's own. 1: one rate for all (the paper's); below 1 fine-tunes the pretrained
+    /// encoder more gently than the new decoder learns.
+    #[serde(default = "default_encoder_lr")]
+    pub encoder_lr: f64,
     /// Training and validation data.
     pub data: DataConfig,
     /// Optimizer and learning-rate schedule (SGD with momentum, 0.1 then 0.01 after epoch
@@ -65,6 +71,10 @@ pub struct SdfcnnTrainConfig {
 
 fn default_seed() -> u64 {
     42
+}
+
+fn default_encoder_lr() -> f64 {
+    1.0
 }
 
 fn default_keep() -> usize {
@@ -188,6 +198,12 @@ impl SdfcnnTrainConfig {
         }
         if self.batch_size == 0 {
             return Err("batch_size must be at least 1".into());
+        }
+        if !(self.encoder_lr > 0.0 && self.encoder_lr <= 10.0) {
+            return Err(format!(
+                "encoder_lr must be a factor in (0, 10], got {}",
+                self.encoder_lr
+            ));
         }
         if !(1..=self.batch_size).contains(&self.accumulate) {
             return Err(format!(

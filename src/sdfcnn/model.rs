@@ -52,7 +52,9 @@
 //! Differences from Nekrasov et al.'s code that follow the table instead: seg1 is 1×1 (theirs
 //! 3×3) and the decoder/judge activations are ReLU (theirs ReLU6).
 
+use burn::module::{ModuleVisitor, Param};
 use burn::nn::conv::Conv2d;
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
@@ -70,6 +72,20 @@ pub(super) const ENCODER: [(usize, usize, usize, usize); 7] = [
     (6, 160, 3, 2),
     (6, 320, 1, 1),
 ];
+
+/// Moves the gradients of the parameters it visits from one set to another.
+struct MoveGrads<'a> {
+    from: &'a mut GradientsParams,
+    to: &'a mut GradientsParams,
+}
+
+impl ModuleVisitor for MoveGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.from.remove::<D>(param.id) {
+            self.to.register::<D>(param.id, g);
+        }
+    }
+}
 
 /// Configuration of [`Sdfcnn`] (Table 13).
 #[derive(Config, Debug)]
@@ -232,6 +248,29 @@ impl SdfcnnConfig {
 }
 
 impl Sdfcnn {
+    /// Takes the encoder's gradients (Layer1 … Layer7, MobileNetV2's part, which `init` can
+    /// take from ImageNet) out of `grads`; the decoder's and the judge layers' stay.
+    pub fn take_encoder_grads(&self, grads: &mut GradientsParams) -> GradientsParams {
+        let mut encoder = GradientsParams::new();
+        let mut mover = MoveGrads {
+            from: grads,
+            to: &mut encoder,
+        };
+        self.layer1.visit(&mut mover);
+        for stage in [
+            &self.layer2,
+            &self.layer3,
+            &self.layer4,
+            &self.layer5,
+            &self.layer6,
+            &self.layer7,
+            &self.layer7_320,
+        ] {
+            stage.visit(&mut mover);
+        }
+        encoder
+    }
+
     /// Checks that `input` is a non-empty `[N, 3, H, W]` batch.
     pub fn check_input(&self, input: &Tensor<4>) -> Result<(), SdfcnnError> {
         let [_, c, h, w] = input.dims();

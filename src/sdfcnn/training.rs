@@ -30,6 +30,7 @@
 //! images; seg/depth metrics compare the outputs upsampled to that size with the targets
 //! resized there by nearest neighbour. `eval seg` evaluates at the original resolution.
 
+use burn::optim::GradientsParams;
 use burn::prelude::*;
 use rand_chacha::ChaCha8Rng;
 use std::collections::BTreeMap;
@@ -177,6 +178,15 @@ impl Learner for SdfLearner<'_> {
         }
     }
 
+    fn lr_groups(&self, model: &Sdfcnn, mut grads: GradientsParams) -> Vec<(f64, GradientsParams)> {
+        let factor = self.cfg.encoder_lr;
+        if factor == 1.0 {
+            return vec![(1.0, grads)];
+        }
+        let encoder = model.take_encoder_grads(&mut grads);
+        vec![(factor, encoder), (1.0, grads)]
+    }
+
     fn plots(&self) -> &'static [Plot] {
         &[
             Plot {
@@ -312,6 +322,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::sdfcnn::SdfcnnConfig;
     use crate::training::RunDir;
+    use burn::nn::conv::Conv2d;
     use std::path::PathBuf;
 
     fn tmp(name: &str) -> PathBuf {
@@ -438,6 +449,72 @@ crp_stages = 2
             msg.contains("model.bpk") && msg.contains("config.toml"),
             "{msg}"
         );
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn encoder_lr_slows_the_encoder_alone() {
+        let root = tmp("encoder_lr");
+        let cfg_path = root.join("tiny.toml");
+        // The weights before training: the run's own seeded initialisation.
+        let start = |text: &str| {
+            let cfg = SdfcnnTrainConfig::parse(text, &cfg_path).expect("parses");
+            let model = cfg
+                .network
+                .to_config()
+                .init(&Device::flex())
+                .expect("valid");
+            seeded_init(model, cfg.seed)
+        };
+        let trained = |out: &Path, text: &str| {
+            let one = RunOptions {
+                epochs: Some(1),
+                ..quiet()
+            };
+            run(&cfg_path, text, &one).expect("one epoch");
+            let ck = RunDir {
+                root: out.to_path_buf(),
+                keep: 0,
+            }
+            .latest()
+            .expect("readable")
+            .expect("checkpoint");
+            load_weights(start(text), &ck.model_path(), &ck.dir.join("config.toml")).expect("loads")
+        };
+        let moved = |a: &Conv2d, b: &Conv2d| -> f32 {
+            let (a, b) = (a.weight.val(), b.weight.val());
+            (a - b).abs().max().into_scalar::<f32>()
+        };
+        // How far one epoch moves the encoder (Layer1, Layer7's last projection) and the
+        // decoder (Layer7_13) from the same start, at the schedule's rate and at a millionth.
+        let movement = |factor: f64| {
+            let out = root.join(format!("run_{factor}"));
+            let text = format!("encoder_lr = {factor}\n{}", tiny_config(&out, ""));
+            let (before, after) = (start(&text), trained(&out, &text));
+            let encoder = [
+                moved(&before.layer1.conv, &after.layer1.conv),
+                moved(
+                    &before.layer7_320.blocks[0].project.conv,
+                    &after.layer7_320.blocks[0].project.conv,
+                ),
+            ];
+            (encoder, moved(&before.conv8, &after.conv8))
+        };
+        let (full, full_decoder) = movement(1.0);
+        let (slow, slow_decoder) = movement(1e-6);
+        for (f, s) in full.iter().zip(&slow) {
+            assert!(
+                *f > 0.0 && *s < 1e-3 * f,
+                "encoder moved {full:?} at 1, {slow:?} at 1e-6"
+            );
+        }
+        assert!(
+            full_decoder > 0.0 && slow_decoder > 0.5 * full_decoder,
+            "decoder moved {full_decoder} at 1, {slow_decoder} at 1e-6"
+        );
+        let bad = format!("encoder_lr = 0\n{}", tiny_config(&root.join("bad"), ""));
+        let e = run(&cfg_path, &bad, &quiet()).expect_err("zero factor");
+        assert!(e.to_string().contains("encoder_lr"), "{e}");
         std::fs::remove_dir_all(&root).ok();
     }
 

@@ -86,6 +86,18 @@ pub trait Learner {
     /// The plots of the run folder.
     fn plots(&self) -> &'static [Plot];
 
+    /// The batch's gradients split into learning-rate groups, each a factor on the
+    /// scheduled rate and the gradients it applies to (fine-tuning a pretrained part more
+    /// gently than a new one). Default: one group, every parameter at the scheduled rate.
+    fn lr_groups(
+        &self,
+        model: &Self::Model,
+        grads: GradientsParams,
+    ) -> Vec<(f64, GradientsParams)> {
+        let _ = model;
+        vec![(1.0, grads)]
+    }
+
     /// The end-of-epoch line's metrics (default: all of them).
     fn summary(&self, values: &BTreeMap<String, f64>) -> String {
         let parts: Vec<String> = values.iter().map(|(k, v)| format!("{k} {v:.4}")).collect();
@@ -339,7 +351,9 @@ fn train_epoch<L: Learner + Sync>(
                 continue;
             }
             skipped = 0;
-            model = optim.step(lr, model, grads);
+            for (factor, group) in learner.lr_groups(&model, grads) {
+                model = optim.step(lr * factor, model, group);
+            }
             state.step += 1;
             for (terms, samples) in &part_terms {
                 meter.add(terms, *samples);

@@ -55,6 +55,41 @@ pub struct SegArgs {
     out: Option<PathBuf>,
 }
 
+/// One image's depth range, true against predicted, over the pixels with a valid sensor depth:
+/// the medians, and the least-squares slope of log true on log predicted depth (1: the
+/// prediction's range fits; above 1: the prediction compresses the true range, and
+/// stretching it by that factor in log depth about its mean would fit better).
+struct ImageDepth {
+    true_median: f64,
+    predicted_median: f64,
+    log_slope: Option<f64>,
+}
+
+impl ImageDepth {
+    fn of(truth: &[f32], pred: &[f32]) -> Option<Self> {
+        let (mut t, mut p): (Vec<f64>, Vec<f64>) = truth
+            .iter()
+            .zip(pred)
+            .filter(|(g, q)| **g > 0.0 && g.is_finite() && **q > 0.0 && q.is_finite())
+            .map(|(&g, &q)| (g as f64, q as f64))
+            .unzip();
+        if t.is_empty() {
+            return None;
+        }
+        let n = t.len() as f64;
+        let (lt, lp): (Vec<f64>, Vec<f64>) =
+            t.iter().zip(&p).map(|(a, b)| (a.ln(), b.ln())).unzip();
+        let (mt, mp) = (lt.iter().sum::<f64>() / n, lp.iter().sum::<f64>() / n);
+        let var: f64 = lp.iter().map(|b| (b - mp).powi(2)).sum();
+        let cov: f64 = lt.iter().zip(&lp).map(|(a, b)| (a - mt) * (b - mp)).sum();
+        Some(ImageDepth {
+            true_median: median(std::mem::take(&mut t)),
+            predicted_median: median(std::mem::take(&mut p)),
+            log_slope: (var > 1e-12 * n).then(|| cov / var),
+        })
+    }
+}
+
 /// Time per image: median over the images (the first, warm-up run is not counted).
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -99,6 +134,7 @@ pub fn run(a: &SegArgs) -> Result<()> {
     // Per image: its median scale and the metrics after dividing it out (scale-invariant).
     let mut scales = Vec::new();
     let mut rescaled = DepthAccumulator::default();
+    let mut per_image = Vec::new();
     let mut times = Vec::with_capacity(n);
     for i in 0..n {
         let (rgb, gt_depth, gt_labels) = data.load(i)?;
@@ -110,6 +146,10 @@ pub fn run(a: &SegArgs) -> Result<()> {
         confusion.add(&gt_labels.data, &pred.labels.data);
         if let Some(d) = &gt_depth {
             depth.add(&d.data, &pred.depth.data);
+            if let Some(r) = ImageDepth::of(&d.data, &pred.depth.data) {
+                per_image.push(json!({"id": data.id(i), "true_median_m": r.true_median,
+                    "predicted_median_m": r.predicted_median, "log_slope": r.log_slope}));
+            }
             if let Some(s) = median_scale(&d.data, &pred.depth.data) {
                 scales.push(s);
                 let scaled: Vec<f32> = pred.depth.data.iter().map(|&p| p * s as f32).collect();
@@ -171,7 +211,7 @@ pub fn run(a: &SegArgs) -> Result<()> {
             "mpa": seg.map(|s| s.0), "miou": seg.map(|s| s.1),
             "pixel_accuracy": labelled.then(|| confusion.pixel_accuracy()),
             "depth": m, "scale": scale, "time_per_image_s": time, "time_mean_s": times.iter().sum::<f64>() / n.max(1) as f64,
-            "parameters": params, "per_class": per_class,
+            "parameters": params, "per_class": per_class, "per_image": per_image,
         });
         sdf_slam::io::write_atomic(p, serde_json::to_string_pretty(&v)?.as_bytes())?;
         println!("wrote {}", p.display());
@@ -289,4 +329,23 @@ fn print_classes(c: &ConfusionMatrix) {
         );
     }
     println!("\npixel accuracy {:.3}", c.pixel_accuracy());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn image_depth_medians_and_log_slope() {
+        // True depth the square of the prediction: twice the range in log depth.
+        let pred = [1.0f32, 2.0, 4.0, 3.0, 0.0];
+        let truth = [1.0f32, 4.0, 16.0, 0.0, 5.0];
+        let r = ImageDepth::of(&truth, &pred).expect("three valid pixels");
+        assert_eq!((r.true_median, r.predicted_median), (4.0, 2.0));
+        assert!((r.log_slope.unwrap() - 2.0).abs() < 1e-9);
+        // One depth everywhere predicted: no slope; no valid pixel: nothing.
+        let flat = ImageDepth::of(&truth[..3], &[2.0; 3]).unwrap();
+        assert!(flat.log_slope.is_none());
+        assert!(ImageDepth::of(&[0.0; 3], &pred[..3]).is_none());
+    }
 }

@@ -91,10 +91,9 @@ pub trait Learner {
     /// gently than a new one). Default: one group, every parameter at the scheduled rate.
     fn lr_groups(
         &self,
-        model: &Self::Model,
+        _model: &Self::Model,
         grads: GradientsParams,
     ) -> Vec<(f64, GradientsParams)> {
-        let _ = model;
         vec![(1.0, grads)]
     }
 

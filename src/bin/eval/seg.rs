@@ -90,7 +90,8 @@ impl ImageDepth {
     }
 }
 
-/// Time per image: median over the images (the first, warm-up run is not counted).
+/// The median of `v` (NaN when empty): of the times per image (the first, warm-up run not
+/// counted) and of an image's depths.
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return f64::NAN;

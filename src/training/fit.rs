@@ -89,6 +89,8 @@ pub trait Learner {
     /// The batch's gradients split into learning-rate groups, each a factor on the
     /// scheduled rate and the gradients it applies to (fine-tuning a pretrained part more
     /// gently than a new one). Default: one group, every parameter at the scheduled rate.
+    /// (Burn's `ModuleLearningRate` holds such groups too, but is only built by its own
+    /// `ModuleLrScheduler`, not from the trainer's `OptimizerConfig::lr_at` schedule.)
     fn lr_groups(
         &self,
         _model: &Self::Model,

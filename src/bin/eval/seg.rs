@@ -67,7 +67,7 @@ struct ImageDepth {
 
 impl ImageDepth {
     fn of(truth: &[f32], pred: &[f32]) -> Option<Self> {
-        let (mut t, mut p): (Vec<f64>, Vec<f64>) = truth
+        let (t, p): (Vec<f64>, Vec<f64>) = truth
             .iter()
             .zip(pred)
             .filter(|(g, q)| **g > 0.0 && g.is_finite() && **q > 0.0 && q.is_finite())
@@ -83,8 +83,8 @@ impl ImageDepth {
         let var: f64 = lp.iter().map(|b| (b - mp).powi(2)).sum();
         let cov: f64 = lt.iter().zip(&lp).map(|(a, b)| (a - mt) * (b - mp)).sum();
         Some(ImageDepth {
-            true_median: median(std::mem::take(&mut t)),
-            predicted_median: median(std::mem::take(&mut p)),
+            true_median: median(t),
+            predicted_median: median(p),
             log_slope: (var > 1e-12 * n).then(|| cov / var),
         })
     }

@@ -7,6 +7,13 @@
 //!   `|r| ≤ c`, `(r² + c²) / 2c` above, with `c = 0.2 · max |r|` over the batch's valid pixels,
 //!   detached), which is the depth loss of Nekrasov et al.'s multi-task SDFCNN design.
 //! * λ = 0.4 (Section V-C: training leans towards depth).
+//! * Optional, not in the paper: `gradient_weight` `w` adds a shape term `G` to the depth loss,
+//!   `Loss = λ·H + (1 − λ)·(L + w·G)`, the multi-scale scale-invariant gradient matching of
+//!   Li & Snavely (MegaDepth, CVPR 2018): with `R = log d̂ − log d` on valid pixels, `G` is
+//!   the mean `|R(p + s) − R(p)|` over horizontal and vertical neighbours at strides
+//!   1, 2, 4, 8, averaged over the strides. It is blind to a global scale and penalises wrong
+//!   relative depth (edges, slopes), which per-pixel `L` weighs little on real Kinect depth.
+//!   The default `w = 0` is eq. 21 as printed.
 //!
 //! Eq. 21 is printed with `−λ·H`; a minus sign would reward a worse segmentation, so it is read
 //! as a typo and the two terms are added.
@@ -62,6 +69,8 @@ pub struct SdfcnnLossConfig {
     pub berhu_ratio: f64,
     /// Resolution the loss is computed at.
     pub resolution: LossResolution,
+    /// Weight `w` of the gradient-matching shape term `G` (0: eq. 21 as printed).
+    pub gradient_weight: f64,
 }
 
 impl Default for SdfcnnLossConfig {
@@ -71,6 +80,7 @@ impl Default for SdfcnnLossConfig {
             depth: DepthLoss::Berhu,
             berhu_ratio: 0.2,
             resolution: LossResolution::Quarter,
+            gradient_weight: 0.0,
         }
     }
 }
@@ -84,10 +94,12 @@ pub struct LossParts {
     pub seg: Tensor<1>,
     /// Depth loss `L`.
     pub depth: Tensor<1>,
+    /// Gradient-matching term `G` (computed only when its weight is not 0).
+    pub shape: Option<Tensor<1>>,
 }
 
 impl SdfcnnLossConfig {
-    /// Checks the ranges (λ in [0, 1], a positive berHu ratio).
+    /// Checks the ranges (λ in [0, 1], a positive berHu ratio, a gradient weight in [0, 100]).
     pub fn validate(&self) -> Result<(), String> {
         if !(0.0..=1.0).contains(&self.lambda) {
             return Err(format!("loss.lambda = {} must be in [0, 1]", self.lambda));
@@ -96,6 +108,12 @@ impl SdfcnnLossConfig {
             return Err(format!(
                 "loss.berhu_ratio = {} must be positive",
                 self.berhu_ratio
+            ));
+        }
+        if !(0.0..=100.0).contains(&self.gradient_weight) {
+            return Err(format!(
+                "loss.gradient_weight = {} must be in [0, 100]",
+                self.gradient_weight
             ));
         }
         Ok(())
@@ -115,10 +133,20 @@ impl SdfcnnLossConfig {
         let [_, _, dh, dw] = out.depth.dims();
         let depth = resize_nearest(depth, [dh, dw]);
         let seg = cross_entropy_void(out.seg, labels);
+        let shape = (self.gradient_weight > 0.0)
+            .then(|| gradient_matching_loss(out.depth.clone(), depth.clone(), &GRADIENT_STRIDES));
         let depth = depth_loss(out.depth, depth, self.depth, self.berhu_ratio);
-        let total =
-            seg.clone().mul_scalar(self.lambda) + depth.clone().mul_scalar(1.0 - self.lambda);
-        LossParts { total, seg, depth }
+        let mut depth_total = depth.clone();
+        if let Some(g) = &shape {
+            depth_total = depth_total + g.clone().mul_scalar(self.gradient_weight);
+        }
+        let total = seg.clone().mul_scalar(self.lambda) + depth_total.mul_scalar(1.0 - self.lambda);
+        LossParts {
+            total,
+            seg,
+            depth,
+            shape,
+        }
     }
 }
 
@@ -167,6 +195,46 @@ pub fn depth_loss(pred: Tensor<4>, gt: Tensor<4>, kind: DepthLoss, berhu_ratio: 
         }
     };
     per_pixel.mask_fill(invalid, 0.0).sum() / count
+}
+
+/// Neighbour strides of the gradient-matching term (MegaDepth uses four scales).
+pub const GRADIENT_STRIDES: [usize; 4] = [1, 2, 4, 8];
+
+/// Depth below which a prediction is clamped before its logarithm (metres; the depth head is
+/// linear and may go negative early in training).
+const MIN_LOG_DEPTH: f64 = 0.01;
+
+/// Multi-scale scale-invariant gradient matching (Li & Snavely 2018) of `pred` against `gt`
+/// (both `[N, 1, H, W]`, `gt = 0` missing): with `R = log pred − log gt`, the mean of
+/// `|R(p + s) − R(p)|` over the horizontal and vertical pixel pairs at stride `s` whose two
+/// ends both have a depth, averaged over the `strides` that fit the image. 0 when no pair has
+/// two valid ends.
+pub fn gradient_matching_loss(pred: Tensor<4>, gt: Tensor<4>, strides: &[usize]) -> Tensor<1> {
+    let valid = gt.clone().greater_elem(0.0);
+    let r = (pred.clamp_min(MIN_LOG_DEPTH).log() - gt.clamp_min(MIN_LOG_DEPTH).log())
+        .mask_fill(valid.clone().bool_not(), 0.0);
+    let valid = valid.float();
+    let [n, c, h, w] = r.dims();
+    let mut total = Tensor::<1>::zeros([1], &r.device());
+    let mut scales = 0usize;
+    for &s in strides.iter().filter(|&&s| s > 0 && (s < w || s < h)) {
+        let mut sum = Tensor::<1>::zeros([1], &r.device());
+        let mut count = Tensor::<1>::zeros([1], &r.device());
+        // Pairs along x (dimension 3) then along y (dimension 2).
+        let pairs = [
+            (s < w).then(|| ([0..n, 0..c, 0..h, s..w], [0..n, 0..c, 0..h, 0..w - s])),
+            (s < h).then(|| ([0..n, 0..c, s..h, 0..w], [0..n, 0..c, 0..h - s, 0..w])),
+        ];
+        for (a, b) in pairs.into_iter().flatten() {
+            let both = valid.clone().slice(a.clone()) * valid.clone().slice(b.clone());
+            let diff = (r.clone().slice(a) - r.clone().slice(b)).abs();
+            sum = sum + (diff * both.clone()).sum();
+            count = count + both.sum().detach();
+        }
+        total = total + sum / count.clamp_min(1.0);
+        scales += 1;
+    }
+    total.div_scalar(scales.max(1) as f64)
 }
 
 /// Source index of each of `dst` output samples when resizing an axis of `src` samples with
@@ -328,6 +396,84 @@ mod tests {
                 assert!(g.iter().all(|v| *v == 0.0), "{g:?}");
             }
         }
+    }
+
+    #[test]
+    fn gradient_matching_by_hand_skips_pairs_with_a_missing_end() {
+        for d in devices() {
+            // R = log pred − log gt = [0, ln 2; ln 2, missing]: one valid pair along x (row 0)
+            // and one along y (column 0), each |ln 2|; stride 2 does not fit a 2×2 image.
+            let pred = float4(&[1.0, 2.0, 4.0, 4.0], [1, 1, 2, 2], &d);
+            let gt = float4(&[1.0, 1.0, 2.0, 0.0], [1, 1, 2, 2], &d);
+            let got = scalar(gradient_matching_loss(pred, gt, &GRADIENT_STRIDES));
+            assert!((got - 2f64.ln()).abs() < 1e-5, "{got}");
+        }
+    }
+
+    #[test]
+    fn gradient_matching_ignores_a_global_scale_but_not_a_wrong_shape() {
+        let d = Device::flex();
+        let gt: Vec<f32> = (0..2 * 16 * 20)
+            .map(|i| 1.0 + (i % 37) as f32 * 0.1)
+            .collect();
+        let gt = float4(&gt, [2, 1, 16, 20], &d);
+        let scaled = gt.clone().mul_scalar(2.5);
+        let g = scalar(gradient_matching_loss(
+            scaled,
+            gt.clone(),
+            &GRADIENT_STRIDES,
+        ));
+        assert!(g.abs() < 1e-5, "{g}");
+        // A flat prediction misses every relative step of the target.
+        let flat = Tensor::<4>::ones([2, 1, 16, 20], &d).mul_scalar(2.0);
+        let g = scalar(gradient_matching_loss(flat, gt, &GRADIENT_STRIDES));
+        assert!(g > 0.05, "{g}");
+    }
+
+    #[test]
+    fn gradient_weight_adds_the_shape_term_to_the_depth_part() {
+        let d = Device::flex();
+        let out = SdfcnnOutput {
+            seg: float4(&[0.0; 8], [1, 2, 2, 2], &d),
+            depth: float4(&[1.0, 2.0, 4.0, 4.0], [1, 1, 2, 2], &d),
+        };
+        let y = labels(&[0, 1, 255, 255], [1, 2, 2], &d);
+        let gt = float4(&[1.0, 1.0, 2.0, 0.0], [1, 1, 2, 2], &d);
+        let cfg = SdfcnnLossConfig {
+            depth: DepthLoss::L1,
+            gradient_weight: 0.5,
+            ..Default::default()
+        };
+        let p = cfg.forward(out, y, gt);
+        let shape = scalar(p.shape.expect("shape term"));
+        let (seg, depth, total) = (scalar(p.seg), scalar(p.depth), scalar(p.total));
+        assert!((shape - 2f64.ln()).abs() < 1e-5);
+        // L1 on the valid residuals 0, 1, 2.
+        assert!((depth - 1.0).abs() < 1e-6);
+        let want = 0.4 * seg + 0.6 * (depth + 0.5 * shape);
+        assert!((total - want).abs() < 1e-5, "{total} vs {want}");
+        assert!(SdfcnnLossConfig::default().validate().is_ok());
+        for bad in [-0.1, 101.0, f64::NAN] {
+            let cfg = SdfcnnLossConfig {
+                gradient_weight: bad,
+                ..Default::default()
+            };
+            assert!(cfg.validate().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn gradient_matching_without_depth_is_zero_with_finite_gradients() {
+        let d = Device::flex().autodiff();
+        let pred = Tensor::<4>::random([1, 1, 4, 4], burn::tensor::Distribution::Default, &d)
+            .sub_scalar(0.5)
+            .require_grad();
+        let zero = Tensor::<4>::zeros([1, 1, 4, 4], &d);
+        let l = gradient_matching_loss(pred.clone(), zero, &GRADIENT_STRIDES);
+        assert_eq!(scalar(l.clone()), 0.0);
+        let g = pred.grad(&l.backward()).expect("gradient");
+        let g = g.into_data().try_to_vec::<f32>().expect("f32");
+        assert!(g.iter().all(|v| v.is_finite()), "{g:?}");
     }
 
     #[test]

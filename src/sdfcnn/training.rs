@@ -158,11 +158,15 @@ impl Learner for SdfLearner<'_> {
         let batch = SdfcnnBatch::from_samples(&samples, self.device)?;
         let out = forward(model, batch.images, cfg.loss.resolution)?;
         let loss = cfg.loss.forward(out, batch.labels, batch.depth);
+        let mut terms = vec![
+            ("seg_loss", scalar(&loss.seg)),
+            ("depth_loss", scalar(&loss.depth)),
+        ];
+        if let Some(g) = &loss.shape {
+            terms.push(("shape_loss", scalar(g)));
+        }
         Ok(Step {
-            terms: vec![
-                ("seg_loss", scalar(&loss.seg)),
-                ("depth_loss", scalar(&loss.depth)),
-            ],
+            terms,
             loss: loss.total,
             samples: n,
         })

@@ -49,11 +49,14 @@ pub(super) fn validate(
             LossResolution::Full => full.clone(),
         };
         let loss = cfg.loss.forward(at_loss, batch.labels, batch.depth);
-        let terms = [
+        let mut terms = vec![
             ("loss", scalar(&loss.total)),
             ("seg_loss", scalar(&loss.seg)),
             ("depth_loss", scalar(&loss.depth)),
         ];
+        if let Some(g) = &loss.shape {
+            terms.push(("shape_loss", scalar(g)));
+        }
         meter.add(&terms, chunk.len());
         let (labels, depth) = predictions(full)?;
         let mut offset = 0;

@@ -39,7 +39,7 @@ use std::path::Path;
 pub use super::config::{DataConfig, NetworkConfig, SdfcnnTrainConfig};
 use super::data::{SdfcnnBatch, SegDepthData};
 use super::inference::load_weights;
-use super::loss::LossResolution;
+use super::loss::{LossParts, LossResolution};
 use super::validation::validate;
 use super::{Sdfcnn, SdfcnnOutput};
 use crate::dataset::augment::{AugmentConfig, SegDepthSample};
@@ -158,15 +158,8 @@ impl Learner for SdfLearner<'_> {
         let batch = SdfcnnBatch::from_samples(&samples, self.device)?;
         let out = forward(model, batch.images, cfg.loss.resolution)?;
         let loss = cfg.loss.forward(out, batch.labels, batch.depth);
-        let mut terms = vec![
-            ("seg_loss", scalar(&loss.seg)),
-            ("depth_loss", scalar(&loss.depth)),
-        ];
-        if let Some(g) = &loss.shape {
-            terms.push(("shape_loss", scalar(g)));
-        }
         Ok(Step {
-            terms,
+            terms: loss_terms(&loss),
             loss: loss.total,
             samples: n,
         })
@@ -275,6 +268,19 @@ pub(super) fn forward(
         LossResolution::Full => model.forward(images),
     };
     Ok(out?)
+}
+
+/// The logged parts of a loss (`seg_loss`, `depth_loss`, and `shape_loss` when computed): the
+/// columns training and validation share in `metrics.csv`.
+pub(super) fn loss_terms(loss: &LossParts) -> Vec<(&'static str, f64)> {
+    let mut terms = vec![
+        ("seg_loss", scalar(&loss.seg)),
+        ("depth_loss", scalar(&loss.depth)),
+    ];
+    if let Some(g) = &loss.shape {
+        terms.push(("shape_loss", scalar(g)));
+    }
+    terms
 }
 
 pub(super) fn scalar(t: &Tensor<1>) -> f64 {

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use super::config::SdfcnnTrainConfig;
 use super::data::{SdfcnnBatch, SegDepthData};
 use super::loss::LossResolution;
-use super::training::{forward, model_device, scalar};
+use super::training::{forward, loss_terms, model_device, scalar};
 use super::{Sdfcnn, SdfcnnOutput};
 use crate::dataset::augment::AugmentConfig;
 use crate::error::{Error, Result};
@@ -49,14 +49,8 @@ pub(super) fn validate(
             LossResolution::Full => full.clone(),
         };
         let loss = cfg.loss.forward(at_loss, batch.labels, batch.depth);
-        let mut terms = vec![
-            ("loss", scalar(&loss.total)),
-            ("seg_loss", scalar(&loss.seg)),
-            ("depth_loss", scalar(&loss.depth)),
-        ];
-        if let Some(g) = &loss.shape {
-            terms.push(("shape_loss", scalar(g)));
-        }
+        let mut terms = vec![("loss", scalar(&loss.total))];
+        terms.extend(loss_terms(&loss));
         meter.add(&terms, chunk.len());
         let (labels, depth) = predictions(full)?;
         let mut offset = 0;

@@ -130,6 +130,7 @@ fn train_then_eval_seg() {
             &["--camera", "configs/cameras/missing.toml"][..],
             "missing.toml",
         ),
+        (&["--camera", "fr1", "--limit", "0"][..], "--limit 0"),
     ] {
         let out = eval(args);
         let stderr = String::from_utf8_lossy(&out.stderr);

@@ -67,6 +67,22 @@ fn missing_sequence_and_monocular_without_sdfcnn_are_errors() {
         err.contains("--first 10") && err.contains("10 frames"),
         "{err}"
     );
+    // Zero frames is refused before any output is written.
+    let out = dir.join("zero");
+    let (ok, _, err) = slam(
+        &[
+            "--sequence",
+            &fx,
+            "--max-frames",
+            "0",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &dir,
+    );
+    assert!(!ok);
+    assert!(err.contains("--max-frames 0"), "{err}");
+    assert!(!out.exists());
 }
 
 #[test]

@@ -269,6 +269,9 @@ fn open_sequence(cli: &Cli) -> Result<(PathBuf, TumSequence)> {
             }
         },
     };
+    if cli.max_frames == Some(0) {
+        bail!("--max-frames 0: at least one frame must be processed");
+    }
     let mut sequence = TumSequence::open(&sequence_path)?;
     if cli.first > 0 {
         if cli.first >= sequence.len() {

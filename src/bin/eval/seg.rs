@@ -120,6 +120,9 @@ fn open_data(a: &SegArgs) -> Result<Set> {
 }
 
 pub fn run(a: &SegArgs) -> Result<()> {
+    if a.limit == Some(0) {
+        anyhow::bail!("--limit 0: at least one image must be evaluated");
+    }
     a.backend.check()?;
     let data = open_data(a)?;
     let fx = data.fx();

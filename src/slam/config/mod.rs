@@ -728,6 +728,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("map.voxel_size"), "{e}");
+        // Too small for the voxel keys (i32 cells): far points would collapse into one.
+        let e = SlamConfig::parse("[map]\nvoxel_size = 1e-9\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("map.voxel_size") && e.contains("0.001"), "{e}");
         // A picture side that would overflow or exhaust memory after the whole run.
         let e = SlamConfig::parse("[map]\ntopdown_size = 200000\n", Path::new("c.toml"))
             .unwrap_err()

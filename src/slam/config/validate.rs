@@ -189,6 +189,13 @@ impl SlamConfig {
             "keyframes.max_rotation_deg",
         )?;
         pos(self.map.voxel_size, "map.voxel_size")?;
+        // Voxel keys are i32 cells: below a millimetre far points would saturate into one.
+        if !(0.001..=10.0).contains(&self.map.voxel_size) {
+            return Err(format!(
+                "map.voxel_size must be in [0.001, 10] metres, got {}",
+                self.map.voxel_size
+            ));
+        }
         pos(self.map.max_depth, "map.max_depth")?;
         if !(self.map.min_depth >= 0.0 && self.map.min_depth < self.map.max_depth) {
             return Err("map.min_depth must be in [0, map.max_depth)".into());

@@ -128,6 +128,7 @@ fn cli_defaults_and_bad_options() {
         ),
         (["--harris-sigma", "0"], "--harris-sigma: harris sigma"),
         (["--orb-levels", "0"], "pyramid levels"),
+        (["--gap", "0"], "gap (0) and pairs (1) must be at least 1"),
     ] {
         let o = run(&[&["--orb-only"][..], &bad[..]].concat());
         assert!(!o.status.success());

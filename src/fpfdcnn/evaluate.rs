@@ -339,6 +339,13 @@ pub fn evaluate(
     cfg: &MatchingEvalConfig,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<(MatchingReport, Option<RgbImage>)> {
+    // Gap 0 would match each frame with itself (100 %, meaning nothing).
+    if cfg.gap == 0 || cfg.pairs == 0 {
+        return Err(Error::msg(format!(
+            "gap ({}) and pairs ({}) must be at least 1",
+            cfg.gap, cfg.pairs
+        )));
+    }
     let pairs = select_pairs(seq.len(), cfg);
     if pairs.is_empty() {
         return Err(Error::msg(format!(

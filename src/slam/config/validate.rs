@@ -188,7 +188,6 @@ impl SlamConfig {
             self.keyframes.max_rotation_deg,
             "keyframes.max_rotation_deg",
         )?;
-        pos(self.map.voxel_size, "map.voxel_size")?;
         // Voxel keys are i32 cells: below a millimetre far points would saturate into one.
         if !(0.001..=10.0).contains(&self.map.voxel_size) {
             return Err(format!(

@@ -418,12 +418,14 @@ fn monocular_multiview_depth_makes_keyframes_agree_despite_a_slanted_prediction(
 #[test]
 fn threads_and_single_thread_give_the_same_trajectory_and_map() {
     let seq = box_room();
-    let a = slam(&seq, box_camera(), config(false), DepthMode::Sensor, true)
-        .run(quiet())
-        .unwrap();
-    let b = slam(&seq, box_camera(), config(true), DepthMode::Sensor, true)
-        .run(quiet())
-        .unwrap();
+    let run = |threads: bool| {
+        let mut cfg = config(threads);
+        cfg.bundle_adjustment.local_keyframes = 10;
+        slam(&seq, box_camera(), cfg, DepthMode::Sensor, true)
+            .run(quiet())
+            .unwrap()
+    };
+    let (a, b) = (run(false), run(true));
     assert!(b.threads && !a.threads);
     let (ta, tb) = (a.trajectory(), b.trajectory());
     assert_eq!(ta.stamps, tb.stamps);
@@ -432,6 +434,30 @@ fn threads_and_single_thread_give_the_same_trajectory_and_map() {
     }
     assert_eq!(a.map.constraints.len(), b.map.constraints.len());
     assert_eq!(a.semantic_map.len(), b.semantic_map.len());
+    // The live estimate too: local bundle adjustment reads nothing the threads race on.
+    assert!(a.local_adjustment.runs > 0);
+    assert_eq!(a.live_poses, b.live_poses);
+    assert_eq!(a.online_poses, b.online_poses);
+}
+
+#[test]
+fn local_bundle_adjustment_moves_the_live_poses_not_the_final_trajectory() {
+    let seq = box_room();
+    let run = |local_keyframes: usize| {
+        let mut cfg = config(false);
+        cfg.bundle_adjustment.local_keyframes = local_keyframes;
+        slam(&seq, box_camera(), cfg, DepthMode::Sensor, false)
+            .run(quiet())
+            .unwrap()
+    };
+    let (off, on) = (run(0), run(10));
+    assert_eq!(off.local_adjustment.runs, 0);
+    assert!(on.local_adjustment.runs >= on.map.keyframes.len() / 2);
+    assert!(on.local_adjustment.free_keyframes > 0);
+    assert_eq!(on.live_poses.len(), on.map.keyframes.len());
+    assert_ne!(off.live_poses, on.live_poses);
+    // The final solve starts from the tracked poses: the trajectory does not change.
+    assert_eq!(off.trajectory().poses, on.trajectory().poses);
 }
 
 #[test]

@@ -52,6 +52,39 @@ pub struct BaSettings {
     pub edge_delta: f64,
 }
 
+impl BaSettings {
+    /// The `[bundle_adjustment]` settings with `iterations`, the depth term of sensor or
+    /// (monocular) predicted depth, and the pose graph's robust kernel for the edges.
+    pub fn new(cfg: &SlamConfig, monocular: bool, iterations: usize) -> Self {
+        let (correction, ba) = (&cfg.correction, &cfg.bundle_adjustment);
+        BaSettings {
+            iterations,
+            sigma_px: ba.sigma_px,
+            huber: ba.huber,
+            outlier_chi2: ba.outlier_chi2,
+            depth_bf: if monocular {
+                ba.predicted_depth_bf
+            } else {
+                ba.depth_bf
+            },
+            edge_kernel: correction.robust_kernel,
+            edge_delta: correction.robust_delta,
+        }
+    }
+}
+
+/// The pose graph's edges with their information times `weight` (none when it is 0).
+pub fn weighted_edges(edges: &[Edge], weight: f64) -> Vec<Edge> {
+    edges
+        .iter()
+        .filter(|_| weight > 0.0)
+        .map(|e| Edge {
+            information: e.information * weight,
+            ..e.clone()
+        })
+        .collect()
+}
+
 /// One keyframe's view of a track.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observation {
@@ -109,31 +142,41 @@ pub fn tracks(map: &Map, camera: &Camera) -> Vec<Track> {
     debug_assert!(groups.iter().all(|g| g.is_sorted()));
     groups.retain(|g| g.len() >= 2 && g.windows(2).all(|w| w[0].0 != w[1].0));
     groups
-        .into_iter()
-        .map(|g| {
-            let mut sum = Vector3::zeros();
-            let observations = g
-                .iter()
-                .map(|&(k, i)| {
-                    let kf = &map.keyframes[k];
-                    let p = kf.track.points_cam[i].expect("groups hold keypoints with 3D points");
-                    sum += (kf.pose * p).coords;
-                    let px = kf.track.features.points[i];
-                    Observation {
-                        keyframe: k,
-                        keypoint: i,
-                        normalized: camera.normalized(&Point2::new(px[0] as f64, px[1] as f64)),
-                        depth: (p.z > 1e-6).then_some(p.z),
-                        inlier: true,
-                    }
-                })
-                .collect();
-            Track {
-                point: Point3::from(sum / g.len() as f64),
-                observations,
+        .iter()
+        .map(|g| track_of_group(map, camera, g, |k| k))
+        .collect()
+}
+
+/// The track of a group of `(keyframe, keypoint)` with 3D points: its point at the mean of
+/// their back-projections from the current poses, each observation's keyframe numbered by
+/// `slot` (the index of its pose in the adjustment).
+pub fn track_of_group(
+    map: &Map,
+    camera: &Camera,
+    group: &[(usize, usize)],
+    slot: impl Fn(usize) -> usize,
+) -> Track {
+    let mut sum = Vector3::zeros();
+    let observations = group
+        .iter()
+        .map(|&(k, i)| {
+            let kf = &map.keyframes[k];
+            let p = kf.track.points_cam[i].expect("groups hold keypoints with 3D points");
+            sum += (kf.pose * p).coords;
+            let px = kf.track.features.points[i];
+            Observation {
+                keyframe: slot(k),
+                keypoint: i,
+                normalized: camera.normalized(&Point2::new(px[0] as f64, px[1] as f64)),
+                depth: (p.z > 1e-6).then_some(p.z),
+                inlier: true,
             }
         })
-        .collect()
+        .collect();
+    Track {
+        point: Point3::from(sum / group.len() as f64),
+        observations,
+    }
 }
 
 /// Groups of `(keyframe, keypoint)` joined by the constraints' matches (union-find), each
@@ -182,7 +225,8 @@ pub fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
     groups.into_values().collect()
 }
 
-fn find(parent: &mut [usize], mut x: usize) -> usize {
+/// The root of `x` in a union-find forest, halving the path on the way.
+pub(crate) fn find(parent: &mut [usize], mut x: usize) -> usize {
     while parent[x] != x {
         parent[x] = parent[parent[x]];
         x = parent[x];
@@ -548,7 +592,7 @@ pub fn adjust_map(
     cfg: &SlamConfig,
     monocular: bool,
 ) -> Option<(BaSummary, Vec<Track>)> {
-    let (correction, cfg) = (&cfg.correction, &cfg.bundle_adjustment);
+    let (full, cfg) = (cfg, &cfg.bundle_adjustment);
     let n = map.keyframes.len();
     if !cfg.enabled || n < 2 {
         return None;
@@ -564,28 +608,9 @@ pub fn adjust_map(
     }
     let first_free = n.saturating_sub(cfg.max_keyframes).max(1);
     let fixed: Vec<bool> = (0..n).map(|k| k < first_free || !seen[k]).collect();
-    let settings = BaSettings {
-        iterations: cfg.iterations,
-        sigma_px: cfg.sigma_px,
-        huber: cfg.huber,
-        outlier_chi2: cfg.outlier_chi2,
-        depth_bf: if monocular {
-            cfg.predicted_depth_bf
-        } else {
-            cfg.depth_bf
-        },
-        edge_kernel: correction.robust_kernel,
-        edge_delta: correction.robust_delta,
-    };
+    let settings = BaSettings::new(full, monocular, cfg.iterations);
     let mut poses: Vec<Pose> = map.keyframes.iter().map(|k| k.pose).collect();
-    let edges: Vec<Edge> = edges
-        .iter()
-        .filter(|_| cfg.edge_weight > 0.0)
-        .map(|e| Edge {
-            information: e.information * cfg.edge_weight,
-            ..e.clone()
-        })
-        .collect();
+    let edges = weighted_edges(edges, cfg.edge_weight);
     let mut summary = adjust(&mut poses, &fixed, &mut tracks, &edges, camera, &settings);
     for (kf, p) in map.keyframes.iter_mut().zip(&poses) {
         kf.pose = renormalized(p);

@@ -16,18 +16,22 @@
 //! constraints known, so its result does not depend on when it runs: threaded
 //! and single-thread runs agree.
 
-use super::bundle_adjustment::{BaSummary, Track, adjust_map, match_groups};
+use super::bundle_adjustment::{
+    BaSettings, BaSummary, Track, adjust_map, match_groups, weighted_edges,
+};
 use super::config::SlamConfig;
 use super::keypoints::similarity;
+use super::local_bundle_adjustment;
 use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
 use super::pose_graph::{Edge, LmSettings, LmSummary, information, optimise};
 use super::tracking::verify_pair;
 use crate::camera::Camera;
-use crate::geometry::Pose;
+use crate::geometry::{Pose, renormalized};
 use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use std::time::Instant;
 
 /// Counts of the correction stage.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -263,6 +267,51 @@ impl Corrector {
         let mut m = write(map);
         let edges = self.edges(&m, m.keyframes.len());
         adjust_map(&mut m, &edges, &self.camera, &self.cfg, monocular)
+    }
+
+    /// Places keyframe `k` where the correction of its predecessor puts it,
+    /// `T_{k-1} T̂_{k-1}⁻¹ T̂_k` (hat: tracked), whatever pose mapping inserted it with.
+    pub fn follow_predecessor(&self, map: &SharedMap, k: usize) {
+        let mut m = write(map);
+        if k == 0 || k >= m.keyframes.len() {
+            return;
+        }
+        let prev = &m.keyframes[k - 1];
+        let pose = renormalized(&(prev.pose * prev.odom_pose.inverse() * m.keyframes[k].odom_pose));
+        m.keyframes[k].pose = pose;
+    }
+
+    /// Local bundle adjustment of keyframe `k`'s window
+    /// ([`super::local_bundle_adjustment`]): the problem is built under the read lock,
+    /// solved without the lock, and its free poses written back. `None` when off or when
+    /// there is nothing to adjust; else what it did and its wall time in seconds.
+    pub fn adjust_local(
+        &self,
+        map: &SharedMap,
+        k: usize,
+        monocular: bool,
+    ) -> Option<(BaSummary, f64)> {
+        let ba = &self.cfg.bundle_adjustment;
+        if !ba.enabled || ba.local_keyframes == 0 {
+            return None;
+        }
+        let started = Instant::now();
+        let (mut problem, edges) = {
+            let m = read(map);
+            let window = local_bundle_adjustment::window(&m, k, ba.local_keyframes);
+            let problem = local_bundle_adjustment::problem(&m, &window, &self.camera)?;
+            (
+                problem,
+                weighted_edges(&self.edges(&m, k + 1), ba.edge_weight),
+            )
+        };
+        let settings = BaSettings::new(&self.cfg, monocular, ba.local_iterations);
+        let summary =
+            local_bundle_adjustment::solve(&mut problem, &edges, &self.camera, &settings)?;
+        let mut m = write(map);
+        local_bundle_adjustment::write_back(&mut m, &problem);
+        m.epoch += 1;
+        Some((summary, started.elapsed().as_secs_f64()))
     }
 
     fn edges(&self, m: &Map, n: usize) -> Vec<Edge> {

@@ -17,6 +17,7 @@ use crate::metrics::Stats;
 use crate::metrics::trajectory::{Alignment, Ape, DeltaUnit, ape, rpe};
 use crate::trajectory::Trajectory;
 use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
 
 /// Largest stamp difference (s) of an associated estimate / ground-truth pair.
 const T_MAX_DIFF: f64 = 0.02;
@@ -90,6 +91,48 @@ pub fn evaluate_trajectory(
         });
     }
     e
+}
+
+/// The keyframes' ATE (the mode's alignment) at three moments of a run.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct KeyframeAtes {
+    /// Each keyframe's pose right after its correction step (the live estimate).
+    pub live: Option<AteReport>,
+    /// Every keyframe's pose at the end of the run, before the final optimisation.
+    pub online: Option<AteReport>,
+    /// The final poses.
+    pub final_poses: Option<AteReport>,
+}
+
+/// The keyframes' ATE against the sequence's ground truth (see [`KeyframeAtes`]); each
+/// `None` without ground truth, with fewer than three poses, or when the alignment fails.
+pub fn keyframe_ates(groundtruth: Option<&Trajectory>, out: &SlamOutput) -> KeyframeAtes {
+    let alignment = match out.depth {
+        DepthMode::Sensor => Alignment::Se3,
+        DepthMode::Predicted => Alignment::Sim3,
+    };
+    let stamps: Vec<f64> = out.map.keyframes.iter().map(|k| k.stamp).collect();
+    let ate = |poses: Vec<crate::geometry::Pose>| {
+        let gt = groundtruth?;
+        if poses.len() != stamps.len() || poses.len() < 3 {
+            return None;
+        }
+        let estimate = Trajectory {
+            stamps: stamps.clone(),
+            poses,
+        };
+        let a = ape(gt, &estimate, alignment, T_MAX_DIFF).ok()?;
+        Some(AteReport {
+            alignment,
+            stats: a.stats,
+            scale: a.alignment.scale,
+        })
+    };
+    KeyframeAtes {
+        live: ate(out.live_poses.clone()),
+        online: ate(out.online_poses.clone()),
+        final_poses: ate(out.map.keyframes.iter().map(|k| k.pose).collect()),
+    }
 }
 
 /// Table 11 figures of the map, when the keyframes have ground-truth poses.

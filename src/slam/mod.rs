@@ -25,6 +25,7 @@ pub mod depth_edges;
 pub mod evaluation;
 pub mod keyframe_alignment;
 pub mod keypoints;
+pub mod local_bundle_adjustment;
 pub mod local_mapper;
 pub mod map;
 pub mod multiview_depth;

@@ -4,7 +4,7 @@
 //! exactly when it has one.
 
 use super::config::SlamConfig;
-use super::evaluation::{evaluate_map_accuracy, evaluate_trajectory};
+use super::evaluation::{evaluate_map_accuracy, evaluate_trajectory, keyframe_ates};
 use super::ply::write_ply;
 use super::report::Report;
 use super::system::SlamOutput;
@@ -110,6 +110,7 @@ pub fn write_outputs(
     }
     let map_accuracy = evaluate_map_accuracy(out, seq, camera, cfg, &points)?;
     let mut report = Report::new(out, seq, &points, trajectory, map_accuracy);
+    report.keyframe_ate = keyframe_ates(seq.groundtruth.as_ref(), out);
     let json_path = dir.join("report.json");
     let md_path = dir.join("report.md");
     outputs.push(json_path.clone());

@@ -142,6 +142,12 @@ pub struct Report {
     /// Multi-view depth of monocular keyframes (zero in RGB-D mode).
     #[serde(default)]
     pub multiview: super::multiview_depth::SweepSummary,
+    /// The local bundle adjustments during the run.
+    #[serde(default)]
+    pub local_adjustment: super::local_bundle_adjustment::LocalBaStats,
+    /// The keyframes' ATE live, before and after the final optimisation.
+    #[serde(default)]
+    pub keyframe_ate: super::evaluation::KeyframeAtes,
     pub outputs: Vec<PathBuf>,
 }
 
@@ -233,6 +239,8 @@ impl Report {
             bundle_adjustment: out.adjustment,
             keyframe_alignment: out.keyframe_alignment.clone(),
             multiview: out.multiview,
+            local_adjustment: out.local_adjustment,
+            keyframe_ate: Default::default(),
             outputs: Vec::new(),
         }
     }
@@ -340,6 +348,15 @@ impl Report {
                 if a.alignment == Alignment::Sim3 {
                     let _ = writeln!(s, "\nSim(3) alignment scale: {:.4}", a.scale);
                 }
+                let k = &self.keyframe_ate;
+                if let (Some(live), Some(online), Some(last)) = (&k.live, &k.online, &k.final_poses)
+                {
+                    let _ = writeln!(
+                        s,
+                        "\nKeyframes' ATE RMSE ({} keyframes): live (each pose right after its correction step) {:.4} m, at the end of the run before the final optimisation {:.4} m, final {:.4} m.",
+                        last.stats.pairs, live.stats.rmse, online.stats.rmse, last.stats.rmse
+                    );
+                }
             }
             None => match (&self.ate_unaligned, &self.ate_note) {
                 (Some(u), note) => {
@@ -444,6 +461,22 @@ impl Report {
                 k.loop_edges,
                 k.median_correction * 1000.0,
                 k.seconds
+            );
+        }
+        let l = &self.local_adjustment;
+        if l.runs > 0 {
+            let per = |v: usize| v as f64 / l.runs as f64;
+            let _ = writeln!(
+                s,
+                "\nLocal bundle adjustment: {} keyframes' windows adjusted during the run, on average {:.1} free and {:.1} fixed keyframes, {:.0} tracks with {:.0} observations ({:.1} dropped by the chi-square gate); {:.1} ms per keyframe on average, {:.1} ms at most.",
+                l.runs,
+                per(l.free_keyframes),
+                per(l.fixed_keyframes),
+                per(l.tracks),
+                per(l.observations),
+                per(l.outliers),
+                l.seconds / l.runs as f64 * 1e3,
+                l.max_seconds * 1e3
             );
         }
         if let Some(b) = &self.bundle_adjustment {

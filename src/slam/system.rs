@@ -11,6 +11,7 @@ use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::keyframe_alignment::{KeyframeAlignmentSummary, keyframe_edges};
 use super::keypoints::KeypointSource;
+use super::local_bundle_adjustment::LocalBaStats;
 use super::local_mapper::{LocalMapper, MapperInput};
 use super::map::{KeyframeFeatures, Map, SharedMap, read, write};
 use super::multiview_depth::SweepSummary;
@@ -96,13 +97,16 @@ pub struct Timings {
     pub correction: StageTime,
     /// Pose-graph optimisations.
     pub optimisation: StageTime,
+    /// Local bundle adjustment per keyframe.
+    #[serde(default)]
+    pub local_adjustment: StageTime,
     /// Final optimisation, local correction and re-fusion.
     pub finalisation: StageTime,
 }
 
 impl Timings {
     /// `(name, time)` of every stage.
-    pub fn stages(&self) -> [(&'static str, StageTime); 9] {
+    pub fn stages(&self) -> [(&'static str, StageTime); 10] {
         [
             ("load", self.load),
             ("features", self.features),
@@ -112,6 +116,7 @@ impl Timings {
             ("fusion", self.fusion),
             ("correction", self.correction),
             ("optimisation", self.optimisation),
+            ("local BA", self.local_adjustment),
             ("finalisation", self.finalisation),
         ]
     }
@@ -170,6 +175,12 @@ pub struct SlamOutput {
     pub local: LocalSummary,
     /// The final bundle adjustment (`None`: off).
     pub adjustment: Option<BaSummary>,
+    /// The local bundle adjustments during the run.
+    pub local_adjustment: LocalBaStats,
+    /// Each keyframe's pose right after its correction step (the live estimate) and every
+    /// keyframe's pose at the end of the run, before the final optimisation.
+    pub live_poses: Vec<Pose>,
+    pub online_poses: Vec<Pose>,
     /// Dense keyframe-to-keyframe edges (RGB-D, `dense.keyframe_edges` > 0).
     pub keyframe_alignment: Option<KeyframeAlignmentSummary>,
     /// Multi-view depth of monocular keyframes, summed over keyframes.
@@ -528,10 +539,12 @@ impl Slam {
             semantics: mapper.semantics_time,
             correction: correction.time,
             optimisation: correction.optimisation,
+            local_adjustment: correction.local_time,
             ..Timings::default()
         };
         // Final correction from all constraints, local correction, re-fusion.
         let t = Instant::now();
+        let online_poses: Vec<Pose> = read(&map).keyframes.iter().map(|k| k.pose).collect();
         let keyframe_alignment = (!monocular && config.dense.keyframe_edges > 0).then(|| {
             let (edges, summary) = keyframe_edges(&read(&map), &camera, &config);
             correction.corrector.set_extra_edges(edges);
@@ -578,6 +591,9 @@ impl Slam {
             landmarks,
             local,
             adjustment,
+            local_adjustment: correction.local,
+            live_poses: correction.live,
+            online_poses,
             keyframe_alignment,
             multiview,
             tracking: run.tracker.counters.clone(),
@@ -622,7 +638,9 @@ struct Stages {
 /// constraints and, when `correction.optimise_online` is set, a pose-graph solve once a
 /// loop has closed since the last one and `correction.optimise_every` keyframes have
 /// passed (RGB-D mode; monocular mode solves at every closed loop, since its multi-view
-/// depth is measured between keyframes placed by the corrections made so far).
+/// depth is measured between keyframes placed by the corrections made so far); otherwise
+/// the keyframe follows its predecessor's correction; then the local bundle adjustment of
+/// its window.
 struct CorrectionStage {
     corrector: Corrector,
     online: bool,
@@ -632,11 +650,21 @@ struct CorrectionStage {
     loop_pending: bool,
     time: StageTime,
     optimisation: StageTime,
+    monocular: bool,
+    /// Local bundle adjustment: what it did and its time.
+    local: LocalBaStats,
+    local_time: StageTime,
+    /// Each keyframe's pose right after its correction step: the live estimate.
+    live: Vec<Pose>,
 }
 
 impl CorrectionStage {
     fn new(corrector: Corrector, cfg: &CorrectionConfig, monocular: bool) -> Self {
         CorrectionStage {
+            monocular,
+            local: LocalBaStats::default(),
+            local_time: StageTime::default(),
+            live: Vec::new(),
             corrector,
             online: cfg.optimise_online,
             every: if monocular {
@@ -656,11 +684,20 @@ impl CorrectionStage {
         self.loop_pending |= self.corrector.add_keyframe(map, id);
         self.since_solve += 1;
         self.time.add(t);
+        self.corrector.follow_predecessor(map, id);
         if self.online && self.loop_pending && self.since_solve >= self.every {
             let t = Instant::now();
             self.corrector.optimise(map);
             self.optimisation.add(t);
             (self.since_solve, self.loop_pending) = (0, false);
+        }
+        let t = Instant::now();
+        if let Some((summary, seconds)) = self.corrector.adjust_local(map, id, self.monocular) {
+            self.local.add(&summary, seconds);
+        }
+        self.local_time.add(t);
+        if let Some(k) = read(map).keyframes.get(id) {
+            self.live.push(k.pose);
         }
     }
 }

@@ -639,6 +639,12 @@ pub struct BundleAdjustmentConfig {
     pub edge_weight: f64,
     /// Afterwards, refine each tracked frame's pose against the adjusted points.
     pub refine_frames: bool,
+    /// Local bundle adjustment during the run ([`crate::slam::local_bundle_adjustment`]):
+    /// at most this many keyframes free around each new one (0: off, the default; 10 when
+    /// on).
+    pub local_keyframes: usize,
+    /// Levenberg-Marquardt iterations of each local adjustment.
+    pub local_iterations: usize,
 }
 
 impl Default for BundleAdjustmentConfig {
@@ -654,6 +660,8 @@ impl Default for BundleAdjustmentConfig {
             predicted_depth_bf: 4.0,
             edge_weight: 1.0,
             refine_frames: true,
+            local_keyframes: 0,
+            local_iterations: 10,
         }
     }
 }
@@ -772,6 +780,8 @@ mod tests {
             ("dense", "edge_agree_rotation_deg", "nan"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
+            ("bundle_adjustment", "local_keyframes", "301"),
+            ("bundle_adjustment", "local_iterations", "0"),
             ("bundle_adjustment", "sigma_px", "0"),
             ("bundle_adjustment", "huber", "nan"),
             ("bundle_adjustment", "outlier_chi2", "-1"),

@@ -307,6 +307,18 @@ impl SlamConfig {
         let b = &self.bundle_adjustment;
         count(b.iterations, 1, 200, "bundle_adjustment.iterations")?;
         count(b.max_keyframes, 1, 300, "bundle_adjustment.max_keyframes")?;
+        count(
+            b.local_keyframes,
+            0,
+            300,
+            "bundle_adjustment.local_keyframes",
+        )?;
+        count(
+            b.local_iterations,
+            1,
+            200,
+            "bundle_adjustment.local_iterations",
+        )?;
         pos(b.sigma_px, "bundle_adjustment.sigma_px")?;
         pos(b.huber, "bundle_adjustment.huber")?;
         pos(b.outlier_chi2, "bundle_adjustment.outlier_chi2")?;

@@ -452,6 +452,8 @@ fn local_bundle_adjustment_moves_the_live_poses_not_the_final_trajectory() {
     };
     let (off, on) = (run(0), run(10));
     assert_eq!(off.local_adjustment.runs, 0);
+    assert_eq!(off.timings.local_adjustment.calls, 0);
+    assert_eq!(on.timings.local_adjustment.calls, on.local_adjustment.runs);
     assert!(on.local_adjustment.runs >= on.map.keyframes.len() / 2);
     assert!(on.local_adjustment.free_keyframes > 0);
     assert_eq!(on.live_poses.len(), on.map.keyframes.len());

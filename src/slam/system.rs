@@ -651,7 +651,7 @@ struct CorrectionStage {
     time: StageTime,
     optimisation: StageTime,
     monocular: bool,
-    /// Local bundle adjustment: what it did and its time.
+    /// Local bundle adjustment: what it did and its time (one call per adjustment run).
     local: LocalBaStats,
     local_time: StageTime,
     /// Each keyframe's pose right after its correction step: the live estimate.
@@ -691,11 +691,11 @@ impl CorrectionStage {
             self.optimisation.add(t);
             (self.since_solve, self.loop_pending) = (0, false);
         }
-        let t = Instant::now();
         if let Some((summary, seconds)) = self.corrector.adjust_local(map, id, self.monocular) {
             self.local.add(&summary, seconds);
+            self.local_time
+                .add_duration(Duration::from_secs_f64(seconds));
         }
-        self.local_time.add(t);
         if let Some(k) = read(map).keyframes.get(id) {
             self.live.push(k.pose);
         }

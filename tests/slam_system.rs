@@ -460,6 +460,20 @@ fn local_bundle_adjustment_moves_the_live_poses_not_the_final_trajectory() {
     assert_ne!(off.live_poses, on.live_poses);
     // The final solve starts from the tracked poses: the trajectory does not change.
     assert_eq!(off.trajectory().poses, on.trajectory().poses);
+    // The report gives the adjustments and the keyframes' live, pre-final and final ATE.
+    let mut cfg = config(false);
+    cfg.bundle_adjustment.local_keyframes = 10;
+    let dir = tmp_dir("box_local_ba");
+    let sequence = TumSequence::open(&seq).unwrap();
+    let report = write_outputs(&on, &sequence, &box_camera(), &cfg, &dir).unwrap();
+    assert_eq!(report.local_adjustment, on.local_adjustment);
+    let k = &report.keyframe_ate;
+    let (live, last) = (k.live.as_ref().unwrap(), k.final_poses.as_ref().unwrap());
+    assert!(k.online.is_some());
+    assert_eq!(live.stats.pairs, on.map.keyframes.len());
+    assert!(last.stats.rmse < 0.025, "{k:?}");
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(md.contains("Local bundle adjustment:") && md.contains("Keyframes' ATE RMSE"));
 }
 
 #[test]

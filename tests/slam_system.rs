@@ -458,8 +458,22 @@ fn local_bundle_adjustment_moves_the_live_poses_not_the_final_trajectory() {
     assert!(on.local_adjustment.free_keyframes > 0);
     assert_eq!(on.live_poses.len(), on.map.keyframes.len());
     assert_ne!(off.live_poses, on.live_poses);
-    // The final solve starts from the tracked poses: the trajectory does not change.
+    // The final solve starts from the tracked poses: the trajectory does not change, also
+    // without a pose graph to solve (global correction off, keyframe pairs still matched).
     assert_eq!(off.trajectory().poses, on.trajectory().poses);
+    let without_graph = |local_keyframes: usize| {
+        let mut cfg = config(false);
+        cfg.correction.enabled = false;
+        cfg.dense.keyframe_edges = 0;
+        cfg.bundle_adjustment.local_keyframes = local_keyframes;
+        slam(&seq, box_camera(), cfg, DepthMode::Sensor, false)
+            .run(quiet())
+            .unwrap()
+    };
+    let (off_g, on_g) = (without_graph(0), without_graph(10));
+    assert!(on_g.local_adjustment.runs > 0);
+    assert_ne!(off_g.live_poses, on_g.live_poses);
+    assert_eq!(off_g.trajectory().poses, on_g.trajectory().poses);
     // The report gives the adjustments and the keyframes' live, pre-final and final ATE.
     let mut cfg = config(false);
     cfg.bundle_adjustment.local_keyframes = 10;

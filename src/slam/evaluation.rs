@@ -105,7 +105,8 @@ pub struct KeyframeAtes {
 }
 
 /// The keyframes' ATE against the sequence's ground truth (see [`KeyframeAtes`]); each
-/// `None` without ground truth, with fewer than three poses, or when the alignment fails.
+/// `None` without ground truth, with fewer than three poses, with not one pose per
+/// keyframe, or when the alignment fails.
 pub fn keyframe_ates(groundtruth: Option<&Trajectory>, out: &SlamOutput) -> KeyframeAtes {
     let alignment = match out.depth {
         DepthMode::Sensor => Alignment::Se3,

@@ -11,7 +11,7 @@
 //! It refines the *live* estimate: the poses the semantic map is fused with during the run
 //! (and, in monocular mode, the baselines of multi-view depth). The final trajectory comes
 //! from the global solve over every keyframe at the end, which starts from the tracked poses
-//! and does not read these. The adjustment reads only keyframes up to `k` and the
+//! (also when there is no pose graph to solve) and does not read these. The adjustment reads only keyframes up to `k` and the
 //! constraints correction wrote, and runs on the correction thread after `k`'s constraints,
 //! so threaded and single-thread runs give the same live poses.
 
@@ -64,8 +64,8 @@ pub struct LocalProblem {
 /// The problem of `window` (from [`window`]) in a map whose keyframes up to the window's
 /// newest have poses: keypoints joined by the matches of the constraints that touch the
 /// window (union-find), with a 3D point, in at least two keyframes, no keyframe twice;
-/// each point starts at the mean of its back-projections. Keyframe 0 and keyframes outside
-/// the window are fixed. `None` without a track.
+/// each point starts at the mean of its back-projections. Keyframe 0, keyframes outside
+/// the window and window keyframes no track sees are fixed. `None` without a track.
 pub fn problem(map: &Map, window: &[usize], camera: &Camera) -> Option<LocalProblem> {
     let newest = *window.last()?;
     let in_window = |k: usize| window.binary_search(&k).is_ok();
@@ -78,11 +78,8 @@ pub fn problem(map: &Map, window: &[usize], camera: &Camera) -> Option<LocalProb
         })
     };
     let has_point = |k: usize, i: usize| {
-        map.keyframes[k]
-            .track
-            .points_cam
-            .get(i)
-            .is_some_and(|p| p.is_some())
+        let track = &map.keyframes[k].track;
+        i < track.features.len() && track.points_cam.get(i).is_some_and(|p| p.is_some())
     };
     for c in &map.constraints {
         if c.a > newest || c.b > newest || !(in_window(c.a) || in_window(c.b)) {
@@ -122,11 +119,20 @@ pub fn problem(map: &Map, window: &[usize], camera: &Camera) -> Option<LocalProb
             .expect("every observing keyframe is listed")
     };
     let poses: Vec<Pose> = ids.iter().map(|&k| map.keyframes[k].pose).collect();
-    let tracks = groups
+    let tracks: Vec<Track> = groups
         .iter()
         .map(|g| track_of_group(map, camera, g, slot))
         .collect();
-    let fixed = ids.iter().map(|&k| k == 0 || !in_window(k)).collect();
+    // A window keyframe no track sees stays where it is, as in the final adjustment.
+    let mut seen = vec![false; ids.len()];
+    for o in tracks.iter().flat_map(|t: &Track| &t.observations) {
+        seen[o.keyframe] = true;
+    }
+    let fixed = ids
+        .iter()
+        .zip(&seen)
+        .map(|(&k, &seen)| k == 0 || !in_window(k) || !seen)
+        .collect();
     Some(LocalProblem {
         ids,
         fixed,
@@ -146,17 +152,7 @@ pub fn solve(
     if p.fixed.iter().all(|&f| f) {
         return None;
     }
-    let slot = |k: usize| p.ids.binary_search(&k).ok();
-    let edges: Vec<Edge> = edges
-        .iter()
-        .filter_map(|e| {
-            Some(Edge {
-                i: slot(e.i)?,
-                j: slot(e.j)?,
-                ..e.clone()
-            })
-        })
-        .collect();
+    let edges = local_edges(&p.ids, edges);
     Some(adjust(
         &mut p.poses,
         &p.fixed,
@@ -165,6 +161,21 @@ pub fn solve(
         camera,
         settings,
     ))
+}
+
+/// The edges between keyframes of `ids` (sorted map indices), renumbered into it.
+pub fn local_edges(ids: &[usize], edges: &[Edge]) -> Vec<Edge> {
+    let slot = |k: usize| ids.binary_search(&k).ok();
+    edges
+        .iter()
+        .filter_map(|e| {
+            Some(Edge {
+                i: slot(e.i)?,
+                j: slot(e.j)?,
+                ..e.clone()
+            })
+        })
+        .collect()
 }
 
 /// Writes the free poses of a solved problem into the map.
@@ -336,6 +347,43 @@ mod tests {
         }
         for k in [0, 1, 2, 3, 8] {
             assert_eq!(map.keyframes[k].pose, before[k], "keyframe {k} moved");
+        }
+    }
+
+    #[test]
+    fn a_window_keyframe_no_track_sees_is_fixed() {
+        let camera = Camera::tum_fr1();
+        let (mut map, _) = scene(&camera);
+        map.constraints
+            .iter_mut()
+            .filter(|c| c.b == 7)
+            .for_each(|c| c.matches.clear());
+        let p = problem(&map, &window(&map, 7, 4), &camera).unwrap();
+        assert_eq!(p.ids, vec![3, 4, 5, 6, 7]);
+        assert_eq!(p.fixed, vec![true, false, false, false, true]);
+    }
+
+    #[test]
+    fn only_edges_between_keyframes_taking_part_are_kept_and_renumbered() {
+        let edge = |i: usize, j: usize| Edge {
+            i,
+            j,
+            measurement: Pose::from_parts(
+                Translation3::new(i as f64, j as f64, 0.5),
+                UnitQuaternion::identity(),
+            ),
+            information: Vector6::repeat((i + j) as f64),
+            robust: i == 3,
+        };
+        let ids = [3, 4, 5, 6, 7];
+        let edges = [edge(3, 4), edge(4, 8), edge(1, 5), edge(6, 7)];
+        let local = local_edges(&ids, &edges);
+        assert_eq!(local.len(), 2);
+        for (l, (e, (i, j))) in local.iter().zip([(&edges[0], (0, 1)), (&edges[3], (3, 4))]) {
+            assert_eq!((l.i, l.j), (i, j));
+            assert_eq!(l.measurement, e.measurement);
+            assert_eq!(l.information, e.information);
+            assert_eq!(l.robust, e.robust);
         }
     }
 

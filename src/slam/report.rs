@@ -353,7 +353,7 @@ impl Report {
                 {
                     let _ = writeln!(
                         s,
-                        "\nKeyframes' ATE RMSE ({} keyframes): live (each pose right after its correction step) {:.4} m, at the end of the run before the final optimisation {:.4} m, final {:.4} m.",
+                        "\nKeyframes' ATE RMSE ({} keyframes with ground truth): live (each pose right after its correction step) {:.4} m, at the end of the run before the final optimisation {:.4} m, final {:.4} m.",
                         last.stats.pairs, live.stats.rmse, online.stats.rmse, last.stats.rmse
                     );
                 }

@@ -550,7 +550,13 @@ impl Slam {
             correction.corrector.set_extra_edges(edges);
             summary
         });
-        correction.corrector.optimise(&map);
+        if correction.corrector.optimise(&map).is_none() {
+            // Nothing to solve: the final poses start from the tracked ones, as a solve
+            // would, not from the live estimate.
+            for k in write(&map).keyframes.iter_mut() {
+                k.pose = k.odom_pose;
+            }
+        }
         let adjustment =
             correction
                 .corrector
@@ -635,12 +641,12 @@ struct Stages {
 }
 
 /// Data correction's share of each keyframe, the same in both run orders: keyframe-pair
-/// constraints and, when `correction.optimise_online` is set, a pose-graph solve once a
-/// loop has closed since the last one and `correction.optimise_every` keyframes have
-/// passed (RGB-D mode; monocular mode solves at every closed loop, since its multi-view
-/// depth is measured between keyframes placed by the corrections made so far); otherwise
-/// the keyframe follows its predecessor's correction; then the local bundle adjustment of
-/// its window.
+/// constraints; the keyframe placed where its predecessor's correction puts it; when
+/// `correction.optimise_online` is set, a pose-graph solve once a loop has closed since the
+/// last one and `correction.optimise_every` keyframes have passed (RGB-D mode; monocular
+/// mode solves at every closed loop, since its multi-view depth is measured between
+/// keyframes placed by the corrections made so far); then the local bundle adjustment of
+/// its window (`bundle_adjustment.local_keyframes` > 0).
 struct CorrectionStage {
     corrector: Corrector,
     online: bool,

@@ -257,6 +257,19 @@ impl Corrector {
         Some(summary)
     }
 
+    /// The final solve: [`Self::optimise`] over every constraint; with nothing to solve, the
+    /// keyframes go back to their tracked poses, where a solve would start, so the final
+    /// estimate never depends on the live one (local bundle adjustment, run order).
+    pub fn optimise_final(&mut self, map: &SharedMap) -> Option<LmSummary> {
+        let summary = self.optimise(map);
+        if summary.is_none() {
+            for k in write(map).keyframes.iter_mut() {
+                k.pose = k.odom_pose;
+            }
+        }
+        summary
+    }
+
     /// Bundle adjustment of the whole map from its current poses, with the pose graph's
     /// edges ([`super::bundle_adjustment::adjust_map`]).
     pub fn bundle_adjust(

@@ -550,13 +550,7 @@ impl Slam {
             correction.corrector.set_extra_edges(edges);
             summary
         });
-        if correction.corrector.optimise(&map).is_none() {
-            // Nothing to solve: the final poses start from the tracked ones, as a solve
-            // would, not from the live estimate.
-            for k in write(&map).keyframes.iter_mut() {
-                k.pose = k.odom_pose;
-            }
-        }
+        correction.corrector.optimise_final(&map);
         let adjustment =
             correction
                 .corrector

@@ -592,9 +592,9 @@ pub fn adjust_map(
     cfg: &SlamConfig,
     monocular: bool,
 ) -> Option<(BaSummary, Vec<Track>)> {
-    let (full, cfg) = (cfg, &cfg.bundle_adjustment);
+    let ba = &cfg.bundle_adjustment;
     let n = map.keyframes.len();
-    if !cfg.enabled || n < 2 {
+    if !ba.enabled || n < 2 {
         return None;
     }
     let started = std::time::Instant::now();
@@ -606,11 +606,11 @@ pub fn adjust_map(
     for o in tracks.iter().flat_map(|t| &t.observations) {
         seen[o.keyframe] = true;
     }
-    let first_free = n.saturating_sub(cfg.max_keyframes).max(1);
+    let first_free = n.saturating_sub(ba.max_keyframes).max(1);
     let fixed: Vec<bool> = (0..n).map(|k| k < first_free || !seen[k]).collect();
-    let settings = BaSettings::new(full, monocular, cfg.iterations);
+    let settings = BaSettings::new(cfg, monocular, ba.iterations);
     let mut poses: Vec<Pose> = map.keyframes.iter().map(|k| k.pose).collect();
-    let edges = weighted_edges(edges, cfg.edge_weight);
+    let edges = weighted_edges(edges, ba.edge_weight);
     let mut summary = adjust(&mut poses, &fixed, &mut tracks, &edges, camera, &settings);
     for (kf, p) in map.keyframes.iter_mut().zip(&poses) {
         kf.pose = renormalized(p);

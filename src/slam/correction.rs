@@ -26,7 +26,7 @@ use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
 use super::pose_graph::{Edge, LmSettings, LmSummary, information, optimise};
 use super::tracking::verify_pair;
 use crate::camera::Camera;
-use crate::geometry::{Pose, renormalized};
+use crate::geometry::Pose;
 use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -289,9 +289,7 @@ impl Corrector {
         if k == 0 || k >= m.keyframes.len() {
             return;
         }
-        let prev = &m.keyframes[k - 1];
-        let pose = renormalized(&(prev.pose * prev.odom_pose.inverse() * m.keyframes[k].odom_pose));
-        m.keyframes[k].pose = pose;
+        m.keyframes[k].pose = m.keyframes[k - 1].carry(&m.keyframes[k].odom_pose);
     }
 
     /// Local bundle adjustment of keyframe `k`'s window

@@ -13,7 +13,7 @@ use super::system::{Log, StageTime};
 use super::tracking::NewKeyframe;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
-use crate::geometry::{Pose, renormalized};
+use crate::geometry::Pose;
 use image::RgbImage;
 use nalgebra::Vector3;
 use std::collections::VecDeque;
@@ -287,8 +287,7 @@ impl LocalMapper {
 /// A keyframe's tracked pose made to follow the corrections made so far (those of the
 /// last keyframe in the map).
 fn corrected_pose(m: &Map, odom_pose: &Pose) -> Pose {
-    match m.keyframes.last() {
-        Some(last) => renormalized(&(last.pose * last.odom_pose.inverse() * odom_pose)),
-        None => *odom_pose,
-    }
+    m.keyframes
+        .last()
+        .map_or(*odom_pose, |last| last.carry(odom_pose))
 }

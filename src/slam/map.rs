@@ -7,7 +7,7 @@
 use super::keypoints::KeyFeatures;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
-use crate::geometry::Pose;
+use crate::geometry::{Pose, renormalized};
 use image::RgbImage;
 use nalgebra::{Point2, Point3};
 use serde::{Deserialize, Serialize};
@@ -166,6 +166,15 @@ pub struct KeyFrame {
     pub view: KeyframeView,
     /// Depth rescaling found by local correction (1: none).
     pub depth_scale: f64,
+}
+
+impl KeyFrame {
+    /// A tracked (odometry) pose moved by this keyframe's correction:
+    /// `T T̂⁻¹ T̂_other` (hat: tracked), the pose a later keyframe takes until it is
+    /// corrected itself.
+    pub fn carry(&self, odom_pose: &Pose) -> Pose {
+        renormalized(&(self.pose * self.odom_pose.inverse() * odom_pose))
+    }
 }
 
 /// Why two keyframes are linked.

@@ -16,7 +16,8 @@
 #    poses). The TUM-layout copy the configs read (7scenes_redkitchen_0_799: depth forward-warped
 #    into a fitted colour camera fx = fy = 527, cx 323, cy 236, depth-to-colour offset
 #    (-3.5, +0.5) cm, poses moved to the colour camera; see the README's "Data formats") was made
-#    outside this project; the project has no converter for it yet.
+#    outside this project; `dataset seven-scenes` converts the download the same way:
+#      cargo run --release --bin dataset -- seven-scenes redkitchen/seq-01 --out DIR [--first N --count M]
 # 4. NYUv2 labelled set (Silberman et al., ECCV 2012): nyu_depth_v2_labeled.mat, read as it is.
 set -euo pipefail
 dest="${1:-../shared}"
@@ -79,6 +80,8 @@ kitchen="$dest/data/7scenes_redkitchen_raw"
 if [ ! -d "$kitchen" ]; then
     echo "7-Scenes redkitchen (Microsoft, non-commercial research use): download"
     echo "  http://download.microsoft.com/download/2/8/5/28564B23-0828-408F-8631-23B1EFF1DAC8/redkitchen.zip"
-    echo "into $kitchen; the registered TUM-layout copy is described in the README (Data formats)."
+    echo "into $kitchen, unzip it and its seq-01.zip, then convert frames 0-799 to the TUM layout:"
+    echo "  cargo run --release --bin dataset -- seven-scenes $kitchen/redkitchen/seq-01 \\"
+    echo "      --out $dest/data/7scenes_redkitchen_0_799 --count 800"
 fi
 echo "NYUv2 labelled set: http://horatio.cs.nyu.edu/mit/silberman/nyu_depth_v2/nyu_depth_v2_labeled.mat"

@@ -190,7 +190,8 @@ impl Camera {
         crate::io::write_atomic(path, text.as_bytes())
     }
 
-    fn validate(&self) -> std::result::Result<(), String> {
+    /// Checks the intrinsics and size (what reading a camera file checks).
+    pub(crate) fn validate(&self) -> std::result::Result<(), String> {
         let vals = [self.fx, self.fy, self.cx, self.cy];
         if vals.iter().any(|v| !v.is_finite()) {
             return Err("camera intrinsics must be finite numbers".into());

@@ -7,6 +7,7 @@ pub mod labels;
 pub mod nyu;
 pub mod nyu_mat;
 pub mod photometric;
+pub mod seven_scenes;
 pub mod tum;
 
 pub use depth::DepthImage;
@@ -14,4 +15,5 @@ pub use fp_pairs::{FpConfig, FpMatch, FpPair, fp_pair, fp_pairs};
 pub use labels::LabelImage;
 pub use nyu::{NyuDataset, NyuItem};
 pub use nyu_mat::NyuMat;
+pub use seven_scenes::{ConvertOptions, Registration};
 pub use tum::{Frame, FrameInfo, TumConfig, TumSequence, associate};

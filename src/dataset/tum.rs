@@ -154,6 +154,16 @@ impl TumSequence {
         let frames = if config.use_associations_file && assoc_txt.is_file() {
             Self::read_associations(&root, &assoc_txt)?
         } else {
+            if !rgb_txt.is_file() && super::seven_scenes::list_frames(&root).is_ok() {
+                return Err(Error::invalid(
+                    &root,
+                    format!(
+                        "a 7-Scenes sequence folder, not a TUM RGB-D one: convert it first \
+                         (`dataset seven-scenes {} --out DIR`)",
+                        root.display()
+                    ),
+                ));
+            }
             if !rgb_txt.is_file() {
                 return Err(Error::invalid(
                     &root,

@@ -45,34 +45,19 @@ impl DepthImage {
     /// Decodes a 16-bit single-channel PNG with `metres = value / scale`
     /// (TUM RGB-D and NYUv2 samples: scale 5000). An 8-bit or colour image is an error.
     pub fn read_png(path: impl AsRef<Path>, scale: f64) -> Result<Self> {
-        let path = path.as_ref();
-        let img = image::open(path).map_err(|e| match e {
-            image::ImageError::IoError(io) => Error::io(path, io),
-            other => Error::invalid(path, format!("cannot decode depth image: {other}")),
-        })?;
-        match img {
-            DynamicImage::ImageLuma16(buf) => {
-                let (width, height) = buf.dimensions();
-                let inv = 1.0 / scale;
-                let data = buf
-                    .as_raw()
-                    .iter()
-                    .map(|&v| (v as f64 * inv) as f32)
-                    .collect();
-                Ok(DepthImage {
-                    width,
-                    height,
-                    data,
-                })
-            }
-            other => Err(Error::invalid(
-                path,
-                format!(
-                    "depth images must be 16-bit single-channel PNG, found {:?}",
-                    other.color()
-                ),
-            )),
-        }
+        let buf = read_png_u16(path.as_ref())?;
+        let (width, height) = buf.dimensions();
+        let inv = 1.0 / scale;
+        let data = buf
+            .as_raw()
+            .iter()
+            .map(|&v| (v as f64 * inv) as f32)
+            .collect();
+        Ok(DepthImage {
+            width,
+            height,
+            data,
+        })
     }
 
     /// Encodes as a 16-bit PNG with `value = round(metres * scale)`, atomically.
@@ -94,5 +79,24 @@ impl DepthImage {
             ImageBuffer::from_raw(self.width, self.height, raw)
                 .ok_or_else(|| Error::msg("depth buffer size does not match its dimensions"))?;
         crate::imageio::write_png_atomic(path, &DynamicImage::ImageLuma16(buf))
+    }
+}
+
+/// Decodes a 16-bit single-channel PNG as it is (raw sensor values); an 8-bit or colour image
+/// is an error naming the file.
+pub fn read_png_u16(path: &Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
+    let img = image::open(path).map_err(|e| match e {
+        image::ImageError::IoError(io) => Error::io(path, io),
+        other => Error::invalid(path, format!("cannot decode depth image: {other}")),
+    })?;
+    match img {
+        DynamicImage::ImageLuma16(buf) => Ok(buf),
+        other => Err(Error::invalid(
+            path,
+            format!(
+                "depth images must be 16-bit single-channel PNG, found {:?}",
+                other.color()
+            ),
+        )),
     }
 }

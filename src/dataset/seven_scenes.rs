@@ -26,7 +26,6 @@ use crate::camera::{Camera, toml_error};
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use crate::io::{read_text, records, write_atomic_with};
-use image::DynamicImage;
 use nalgebra::{Matrix3, Point2, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
@@ -340,19 +339,7 @@ pub fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
 /// Reads a 7-Scenes depth image: 16-bit single-channel PNG of the depth camera's size.
 pub fn read_depth_mm(path: impl AsRef<Path>, camera: &Camera) -> Result<Vec<u16>> {
     let path = path.as_ref();
-    let img = image::open(path).map_err(|e| match e {
-        image::ImageError::IoError(io) => Error::io(path, io),
-        other => Error::invalid(path, format!("cannot decode depth image: {other}")),
-    })?;
-    let DynamicImage::ImageLuma16(buf) = img else {
-        return Err(Error::invalid(
-            path,
-            format!(
-                "7-Scenes depth images are 16-bit single-channel PNG (millimetres), found {:?}",
-                img.color()
-            ),
-        ));
-    };
+    let buf = super::depth::read_png_u16(path)?;
     if buf.dimensions() != (camera.width, camera.height) {
         return Err(Error::invalid(
             path,

@@ -5,6 +5,14 @@
 //! [`axial_noise`]). Pixels go through the camera's distortion model both
 //! ways, as everywhere else in the system. Tracking keeps the refined pose only when it agrees
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
+//!
+//! With `dense.photometric_sigma` > 0 and images on both sides, each pair also contributes a
+//! photometric residual (the model's intensity where the frame point projects minus the
+//! frame point's own), as in the hybrid RGB-D odometry of Steinbrücker, Sturm and Cremers
+//! (2011) and Kerl, Sturm and Cremers (2013): it holds directions that geometry alone leaves
+//! loose (sliding along a wall, a cupboard front). The frame's exposure is fitted to the
+//! model's (gain and bias) after each step. Keyframe alignments use it
+//! ([`super::keyframe_alignment`]); tracking's refinement does not.
 
 use super::config::DenseConfig;
 use super::map::ViewBounds;
@@ -12,6 +20,7 @@ use super::pose_graph::se3_exp;
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
+use image::RgbImage;
 use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -20,6 +29,123 @@ use std::sync::Arc;
 /// full resolution in tracking, a keyframe's fusion resolution between keyframes).
 fn fits(rays: &RayTable, depth: &DepthImage) -> bool {
     (depth.width, depth.height) == (rays.width, rays.height)
+}
+
+/// A grey image (0-1) sampled as a depth image is, for the photometric term.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Intensity {
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<f32>,
+}
+
+impl Intensity {
+    /// Least intensity gradient (sum of the central differences' magnitudes along x and y,
+    /// per sample) of a frame sample that takes part in the photometric term: flat samples
+    /// carry little information and cost as much (about 40 % of a 7-Scenes kitchen image's
+    /// samples at the fusion resolution pass).
+    pub const MIN_GRADIENT: f32 = 0.02;
+
+    /// Whether the sample at `(x, y)` has [`Intensity::MIN_GRADIENT`]; not at the border.
+    fn textured(&self, x: usize, y: usize) -> bool {
+        let (w, h) = (self.width as usize, self.height as usize);
+        if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
+            return false;
+        }
+        let at = |x: usize, y: usize| self.data[y * w + x];
+        let gx = (at(x + 1, y) - at(x - 1, y)).abs();
+        let gy = (at(x, y + 1) - at(x, y - 1)).abs();
+        0.5 * (gx + gy) >= Self::MIN_GRADIENT
+    }
+
+    /// Rec. 601 luma of `rgb`, scaled to 0-1.
+    pub fn from_rgb(rgb: &RgbImage) -> Self {
+        let data = rgb
+            .pixels()
+            .map(|p| {
+                let [r, g, b] = p.0.map(f32::from);
+                (0.299 * r + 0.587 * g + 0.114 * b) / 255.0
+            })
+            .collect();
+        Intensity {
+            width: rgb.width(),
+            height: rgb.height(),
+            data,
+        }
+    }
+}
+
+/// A model's intensity, smoothed by a 3x3 binomial kernel, with its central-difference
+/// gradients per sample: `[I, ∂I/∂x, ∂I/∂y]` (per sample of the image, not per pixel).
+struct IntensityModel {
+    width: usize,
+    height: usize,
+    samples: Vec<[f32; 3]>,
+}
+
+impl IntensityModel {
+    fn new(image: &Intensity) -> Self {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let at = |x: usize, y: usize| image.data[y * w + x];
+        // Separable [1 2 1] / 4, edges clamped.
+        let blur_x: Vec<f32> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                0.25 * at(l, y) + 0.5 * at(x, y) + 0.25 * at(r, y)
+            })
+            .collect();
+        let smooth: Vec<f32> = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let (u, d) = (y.saturating_sub(1), (y + 1).min(h - 1));
+                0.25 * blur_x[u * w + x] + 0.5 * blur_x[y * w + x] + 0.25 * blur_x[d * w + x]
+            })
+            .collect();
+        let s = |x: usize, y: usize| smooth[y * w + x];
+        let samples = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let (u, d) = (y.saturating_sub(1), (y + 1).min(h - 1));
+                let gx = (s(r, y) - s(l, y)) / (r - l).max(1) as f32;
+                let gy = (s(x, d) - s(x, u)) / (d - u).max(1) as f32;
+                [s(x, y), gx, gy]
+            })
+            .collect();
+        IntensityModel {
+            width: w,
+            height: h,
+            samples,
+        }
+    }
+
+    /// Bilinear intensity and gradient at sample coordinates `(x, y)`; `None` outside.
+    #[inline]
+    fn sample(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (x0, y0) = (x as usize, y as usize);
+        if x0 + 1 >= self.width || y0 + 1 >= self.height {
+            return None;
+        }
+        let (ax, ay) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let i = y0 * self.width + x0;
+        let [a, b, c, d] = [
+            self.samples[i],
+            self.samples[i + 1],
+            self.samples[i + self.width],
+            self.samples[i + self.width + 1],
+        ];
+        let mut out = [0.0; 3];
+        for (k, o) in out.iter_mut().enumerate() {
+            let top = a[k] + ax * (b[k] - a[k]);
+            let bottom = c[k] + ax * (d[k] - c[k]);
+            *o = f64::from(top + ay * (bottom - top));
+        }
+        Some(out)
+    }
 }
 
 /// A keyframe's depth as points and normals on a grid of every `step`-th sample of its depth
@@ -39,6 +165,8 @@ pub struct DepthModel {
     /// One over the grid's spacing in image pixels.
     inv_cell: f64,
     rays: Arc<RayTable>,
+    /// The keyframe's intensity, for the photometric term ([`DepthModel::with_intensity`]).
+    intensity: Option<IntensityModel>,
 }
 
 impl DepthModel {
@@ -110,17 +238,28 @@ impl DepthModel {
             pinhole: camera.distortion.is_zero(),
             inv_cell: 1.0 / (step * rays.stride as usize) as f64,
             rays,
+            intensity: None,
         })
     }
 
-    /// The model point, normal and weight where `p` (keyframe camera frame) projects: the
-    /// nearest grid sample to its pixel.
+    /// The model with the keyframe's intensity (sampled as its depth is) for the photometric
+    /// term; unchanged when `image` is not sampled as the model's depth.
+    pub fn with_intensity(mut self, image: &Intensity) -> Self {
+        if (image.width, image.height) == (self.rays.width, self.rays.height) {
+            self.intensity = Some(IntensityModel::new(image));
+        }
+        self
+    }
+
+    /// Where `p` (keyframe camera frame) projects in the keyframe's image; `None` behind the
+    /// camera or where projecting is unreliable.
     #[inline]
-    fn lookup(&self, p: [f64; 3]) -> Option<&[f32; 7]> {
+    fn project(&self, p: [f64; 3]) -> Option<Projection> {
         if p[2] <= 1e-6 {
             return None;
         }
-        let (x, y) = (p[0] / p[2], p[1] / p[2]);
+        let iz = 1.0 / p[2];
+        let (x, y) = (p[0] * iz, p[1] * iz);
         if !self.bounds.contains_normalized(x, y) {
             return None;
         }
@@ -131,14 +270,51 @@ impl DepthModel {
             let d = c.distortion.distort(Vector2::new(x, y));
             (d.x, d.y)
         };
+        Some(Projection {
+            x,
+            y,
+            iz,
+            pixel: (c.fx * u + c.cx, c.fy * v + c.cy),
+        })
+    }
+
+    /// The model point, normal and weight at a projection: the nearest grid sample to its
+    /// pixel.
+    #[inline]
+    fn lookup(&self, at: &Projection) -> Option<&[f32; 7]> {
         // Rounded to the nearest sample (the `+ 0.5` and truncation of a non-negative value).
-        let gx = (c.fx * u + c.cx) * self.inv_cell + 0.5;
-        let gy = (c.fy * v + c.cy) * self.inv_cell + 0.5;
+        let gx = at.pixel.0 * self.inv_cell + 0.5;
+        let gy = at.pixel.1 * self.inv_cell + 0.5;
         if gx < 0.0 || gy < 0.0 || gx >= self.width as f64 || gy >= self.height as f64 {
             return None;
         }
         self.points[gy as usize * self.width + gx as usize].as_ref()
     }
+
+    /// The keyframe's intensity at a projection and its derivatives along the projected
+    /// point: `(I, ∂I/∂p)`; `None` without an intensity image or outside it.
+    #[inline]
+    fn photometric(&self, at: &Projection) -> Option<(f64, [f64; 3])> {
+        let intensity = self.intensity.as_ref()?;
+        let per_sample = 1.0 / f64::from(self.rays.stride);
+        let [i, gx, gy] = intensity.sample(at.pixel.0 * per_sample, at.pixel.1 * per_sample)?;
+        // Per pixel, then through the pinhole projection (the distortion's own derivative is
+        // left out: it shapes Gauss-Newton's step only; the residual is exact).
+        let c = &self.camera;
+        let (du, dv) = (gx * per_sample * c.fx, gy * per_sample * c.fy);
+        let Projection { x, y, iz, .. } = *at;
+        Some((i, [du * iz, dv * iz, -(du * x + dv * y) * iz]))
+    }
+}
+
+/// A point projected into a keyframe's image: normalised coordinates, inverse depth and
+/// pixel (after the camera's distortion).
+#[derive(Debug, Clone, Copy)]
+struct Projection {
+    x: f64,
+    y: f64,
+    iz: f64,
+    pixel: (f64, f64),
 }
 
 /// The outcome of [`align`].
@@ -162,9 +338,14 @@ pub struct Alignment {
 /// too few pairs remain, or the system is degenerate (a single plane leaves directions
 /// unconstrained; a near-degenerate one, a wall with a little clutter, is not caught here,
 /// and the caller's agreement with the keypoint pose bounds what it can do).
+///
+/// With `intensity` (the frame's, sampled as `depth`), a model made
+/// [`DepthModel::with_intensity`] and `cfg.photometric_sigma` > 0, each pair also adds the
+/// photometric residual (module documentation).
 pub fn align(
     model: &DepthModel,
     depth: &DepthImage,
+    intensity: Option<&Intensity>,
     initial: &Pose,
     range: (f64, f64),
     cfg: &DenseConfig,
@@ -173,27 +354,56 @@ pub fn align(
     if !fits(rays, depth) {
         return None;
     }
+    let intensity = intensity.filter(|i| {
+        cfg.photometric_sigma > 0.0
+            && model.intensity.is_some()
+            && (i.width, i.height) == (depth.width, depth.height)
+    });
+    let weights = Weights {
+        max_sq: 0.0,
+        huber: cfg.huber,
+        noise_weighting: cfg.noise_weighting,
+        // Intensity residuals in metres at 1 m: one sigma of intensity counts as one sigma of
+        // the sensor's depth noise there.
+        photometric: if intensity.is_some() {
+            axial_noise(1.0) / cfg.photometric_sigma
+        } else {
+            0.0
+        },
+        brightness: Brightness::IDENTITY,
+    };
     let mut pose = *initial;
     let mut last = None;
     for level in &cfg.levels {
         let step = (level.step / rays.stride as usize).max(1);
-        let source: Vec<Vector3<f64>> = (0..depth.height as usize)
+        let source: Vec<Sample> = (0..depth.height as usize)
             .step_by(step)
             .flat_map(|v| (0..depth.width as usize).step_by(step).map(move |u| (u, v)))
             .filter_map(|(u, v)| {
-                let z = f64::from(depth.data[v * depth.width as usize + u]);
-                (z > range.0 && z < range.1).then(|| rays.point(u, v, z).coords)
+                let i = v * depth.width as usize + u;
+                let z = f64::from(depth.data[i]);
+                (z > range.0 && z < range.1).then(|| Sample {
+                    point: rays.point(u, v, z).coords,
+                    intensity: intensity
+                        .filter(|im| im.textured(u, v))
+                        .map_or(f32::NAN, |im| im.data[i]),
+                })
             })
             .collect();
+        let mut weights = Weights {
+            max_sq: level.max_distance * level.max_distance,
+            ..weights
+        };
         for _ in 0..cfg.iterations {
-            let (h, g, inliers, sq) = normal_equations(
-                model,
-                &source,
-                &pose,
-                level.max_distance,
-                cfg.huber,
-                cfg.noise_weighting,
-            );
+            let NormalEquations {
+                h,
+                g,
+                pairs: inliers,
+                sq,
+                intensities,
+            } = normal_equations(model, &source, &pose, &weights);
+            // The frame's exposure against the model's, from this step's pairs, for the next.
+            weights.brightness = intensities.fit().unwrap_or(weights.brightness);
             if inliers < cfg.min_pairs {
                 return None;
             }
@@ -234,35 +444,160 @@ fn noise_weight(z: f64) -> f64 {
     r * r
 }
 
+/// A frame point in its own camera frame, with its intensity (NaN: none).
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    point: Vector3<f64>,
+    intensity: f32,
+}
+
+/// The model's intensity as an affine function of the frame's, `I_model ≈ gain · I_frame +
+/// bias`: exposure and white balance change between a camera's frames.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Brightness {
+    gain: f64,
+    bias: f64,
+}
+
+impl Brightness {
+    const IDENTITY: Brightness = Brightness {
+        gain: 1.0,
+        bias: 0.0,
+    };
+}
+
+/// Sums over the pairs with intensities on both sides (frame `f`, model `m`) for fitting a
+/// [`Brightness`]: count, Σf, Σm, Σf², Σfm.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct IntensitySums([f64; 5]);
+
+impl IntensitySums {
+    fn add(&mut self, f: f64, m: f64) {
+        let s = &mut self.0;
+        s[0] += 1.0;
+        s[1] += f;
+        s[2] += m;
+        s[3] += f * f;
+        s[4] += f * m;
+    }
+
+    fn merge(self, other: Self) -> Self {
+        let mut out = self;
+        for (a, b) in out.0.iter_mut().zip(other.0) {
+            *a += b;
+        }
+        out
+    }
+
+    /// Least squares `m ≈ gain · f + bias`; `None` with under 100 pairs, too little contrast
+    /// or a gain outside [0.5, 2].
+    fn fit(&self) -> Option<Brightness> {
+        let [n, sf, sm, sff, sfm] = self.0;
+        if n < 100.0 {
+            return None;
+        }
+        let var = sff / n - (sf / n).powi(2);
+        if var < 1e-6 {
+            return None;
+        }
+        let gain = (sfm / n - sf / n * sm / n) / var;
+        (0.5..=2.0).contains(&gain).then(|| Brightness {
+            gain,
+            bias: (sm - gain * sf) / n,
+        })
+    }
+}
+
+/// One Gauss-Newton step's system from [`normal_equations`].
+struct NormalEquations {
+    h: Matrix6<f64>,
+    g: Vector6<f64>,
+    /// Pairs within the distance gate.
+    pairs: usize,
+    /// Their squared point-to-plane distances, summed.
+    sq: f64,
+    intensities: IntensitySums,
+}
+
+/// How [`normal_equations`] weighs pairs.
+#[derive(Debug, Clone, Copy)]
+struct Weights {
+    /// Pairs farther apart than this squared distance are dropped.
+    max_sq: f64,
+    huber: f64,
+    noise_weighting: bool,
+    /// Intensity residuals times this are metres at 1 m (0: no photometric term).
+    photometric: f64,
+    /// Applied to the frame's intensities before they are compared.
+    brightness: Brightness,
+}
+
+/// Adds `w·jᵀj` (upper triangle, row by row) and `w·jᵀr` to the sums.
+#[inline]
+fn accumulate(upper: &mut [f64; 21], g: &mut Vector6<f64>, j: &[f64; 6], w: f64, r: f64) {
+    let mut k = 0;
+    for a in 0..6 {
+        let wa = w * j[a];
+        for b in j.iter().skip(a) {
+            upper[k] += wa * b;
+            k += 1;
+        }
+        g[a] += wa * r;
+    }
+}
+
+/// Huber's weight for residual `r` whitened by `√wn`: `wn` within `huber`, `wn·huber/|r√wn|`
+/// beyond it.
+#[inline]
+fn huber_weight(r: f64, wn: f64, huber: f64) -> f64 {
+    if r * r * wn <= huber * huber {
+        wn
+    } else {
+        huber * wn.sqrt() / r.abs()
+    }
+}
+
 /// `JᵀWJ`, `JᵀWr`, the pair count and the sum of squared distances of one Gauss-Newton step
 /// for a left perturbation `δ = (v, ω)` of `pose`: `r = n·(p − q)`, `∂r/∂δ = (n, p × n)`;
 /// with `noise_weighting` each pair is weighted by [`noise_weight`] at the model point's
-/// depth, and Huber's threshold applies to the residual so whitened. Chunks of points are
+/// depth, and Huber's threshold applies to the residual so whitened. With a photometric
+/// weight, each pair with intensities on both sides adds `r = k (I_model(π(p)) − gain ·
+/// I_frame − bias)`, `∂r/∂δ = k (∂I/∂p, p × ∂I/∂p)`, under the same Huber threshold, and its
+/// intensities go into the sums the next step's brightness is fitted from. Chunks of points are
 /// summed in parallel and their sums added in order, so the result does not depend on the
 /// thread count.
 fn normal_equations(
     model: &DepthModel,
-    source: &[Vector3<f64>],
+    source: &[Sample],
     pose: &Pose,
-    max_distance: f64,
-    huber: f64,
-    noise_weighting: bool,
-) -> (Matrix6<f64>, Vector6<f64>, usize, f64) {
-    let max_sq = max_distance * max_distance;
+    weights: &Weights,
+) -> NormalEquations {
+    let Weights {
+        max_sq,
+        huber,
+        noise_weighting,
+        photometric,
+        brightness,
+    } = *weights;
     let m = pose.rotation.to_rotation_matrix().into_inner();
     let t = pose.translation.vector;
-    let chunk = |points: &[Vector3<f64>]| {
+    let chunk = |samples: &[Sample]| {
         // The upper triangle of JᵀWJ, row by row, summed as numbers (no 6x6 temporaries).
         let mut upper = [0.0f64; 21];
         let mut g = Vector6::zeros();
         let (mut n_pairs, mut sq) = (0usize, 0.0);
-        for s in points {
+        let mut intensities = IntensitySums::default();
+        for sample in samples {
+            let s = &sample.point;
             let p = [
                 m[(0, 0)] * s.x + m[(0, 1)] * s.y + m[(0, 2)] * s.z + t.x,
                 m[(1, 0)] * s.x + m[(1, 1)] * s.y + m[(1, 2)] * s.z + t.y,
                 m[(2, 0)] * s.x + m[(2, 1)] * s.y + m[(2, 2)] * s.z + t.z,
             ];
-            let Some(&[qx, qy, qz, nx, ny, nz, noise]) = model.lookup(p) else {
+            let Some(at) = model.project(p) else {
+                continue;
+            };
+            let Some(&[qx, qy, qz, nx, ny, nz, noise]) = model.lookup(&at) else {
                 continue;
             };
             let n = [f64::from(nx), f64::from(ny), f64::from(nz)];
@@ -275,19 +610,12 @@ fn normal_equations(
                 continue;
             }
             let r = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
-            // Huber on the whitened residual r·√wn: wn within the threshold, wn·huber/|r√wn|
-            // beyond it.
             let wn = if noise_weighting {
                 f64::from(noise)
             } else {
                 1.0
             };
-            let w = if r * r * wn <= huber * huber {
-                wn
-            } else {
-                huber * wn.sqrt() / r.abs()
-            };
-            // p × n
+            let w = huber_weight(r, wn, huber);
             let j = [
                 n[0],
                 n[1],
@@ -296,17 +624,28 @@ fn normal_equations(
                 p[2] * n[0] - p[0] * n[2],
                 p[0] * n[1] - p[1] * n[0],
             ];
-            let mut k = 0;
-            for a in 0..6 {
-                let wa = w * j[a];
-                for b in j.iter().skip(a) {
-                    upper[k] += wa * b;
-                    k += 1;
-                }
-                g[a] += wa * r;
-            }
+            accumulate(&mut upper, &mut g, &j, w, r);
             n_pairs += 1;
             sq += r * r;
+            if photometric > 0.0
+                && !sample.intensity.is_nan()
+                && let Some((i, gp)) = model.photometric(&at)
+            {
+                let k = photometric;
+                let f = f64::from(sample.intensity);
+                intensities.add(f, i);
+                let r = k * (i - brightness.gain * f - brightness.bias);
+                let gp = [k * gp[0], k * gp[1], k * gp[2]];
+                let j = [
+                    gp[0],
+                    gp[1],
+                    gp[2],
+                    p[1] * gp[2] - p[2] * gp[1],
+                    p[2] * gp[0] - p[0] * gp[2],
+                    p[0] * gp[1] - p[1] * gp[0],
+                ];
+                accumulate(&mut upper, &mut g, &j, huber_weight(r, 1.0, huber), r);
+            }
         }
         let mut h = Matrix6::zeros();
         let mut k = 0;
@@ -317,13 +656,29 @@ fn normal_equations(
                 k += 1;
             }
         }
-        (h, g, n_pairs, sq)
+        NormalEquations {
+            h,
+            g,
+            pairs: n_pairs,
+            sq,
+            intensities,
+        }
     };
     let parts: Vec<_> = source.par_chunks(4096).map(chunk).collect();
-    parts.into_iter().fold(
-        (Matrix6::zeros(), Vector6::zeros(), 0, 0.0),
-        |(h, g, n, sq), (h2, g2, n2, sq2)| (h + h2, g + g2, n + n2, sq + sq2),
-    )
+    let empty = NormalEquations {
+        h: Matrix6::zeros(),
+        g: Vector6::zeros(),
+        pairs: 0,
+        sq: 0.0,
+        intensities: IntensitySums::default(),
+    };
+    parts.into_iter().fold(empty, |a, b| NormalEquations {
+        h: a.h + b.h,
+        g: a.g + b.g,
+        pairs: a.pairs + b.pairs,
+        sq: a.sq + b.sq,
+        intensities: a.intensities.merge(b.intensities),
+    })
 }
 
 #[cfg(test)]
@@ -405,7 +760,7 @@ pub(crate) mod tests {
             Translation3::new(0.01, -0.01, 0.03),
             UnitQuaternion::from_euler_angles(0.01, -0.015, 0.0),
         );
-        let a = align(&model, &frame_depth, &start, range, &cfg).expect("aligned");
+        let a = align(&model, &frame_depth, None, &start, range, &cfg).expect("aligned");
         let err = truth.inverse() * a.pose;
         assert!(
             err.translation.vector.norm() < 2e-3 && err.rotation.angle() < 1e-3,
@@ -454,13 +809,24 @@ pub(crate) mod tests {
             (2.0, 0.02, w2 / 0.5),
         ] {
             let model = DepthModel::new(&wall(z), &camera, rays.clone(), 1, (0.1, 6.0)).unwrap();
-            let source: Vec<Vector3<f64>> = (0..60)
+            let source: Vec<Sample> = (0..60)
                 .flat_map(|v| (0..80).map(move |u| (u, v)))
-                .map(|(u, v)| rays.point(u, v, f64::from(z) - offset).coords)
+                .map(|(u, v)| Sample {
+                    point: rays.point(u, v, f64::from(z) - offset).coords,
+                    intensity: f32::NAN,
+                })
                 .collect();
             let pose = Pose::identity();
-            let (h0, g0, n0, _) = normal_equations(&model, &source, &pose, 0.1, 0.01, false);
-            let (h1, g1, n1, _) = normal_equations(&model, &source, &pose, 0.1, 0.01, true);
+            let weights = |noise_weighting| Weights {
+                max_sq: 0.01,
+                huber: 0.01,
+                noise_weighting,
+                photometric: 0.0,
+                brightness: Brightness::IDENTITY,
+            };
+            let e0 = normal_equations(&model, &source, &pose, &weights(false));
+            let e1 = normal_equations(&model, &source, &pose, &weights(true));
+            let (h0, g0, n0, h1, g1, n1) = (e0.h, e0.g, e0.pairs, e1.h, e1.g, e1.pairs);
             assert_eq!(n0, n1);
             assert!(n0 > 3000, "{n0} pairs");
             let case = format!("wall at {z} m, {offset} m nearer");
@@ -499,7 +865,7 @@ pub(crate) mod tests {
         };
         let rays = Arc::new(RayTable::new(&camera, 2));
         let model = DepthModel::new(&kf_depth, &camera, rays, 1, range).expect("stride 2");
-        let a = align(&model, &frame_depth, &Pose::identity(), range, &cfg).expect("aligned");
+        let a = align(&model, &frame_depth, None, &Pose::identity(), range, &cfg).expect("aligned");
         let err = frame_pose.inverse() * a.pose;
         assert!(
             err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
@@ -507,7 +873,202 @@ pub(crate) mod tests {
         );
         // Full-resolution depth against the stride-2 model is not the same sampling.
         let full = render(&camera, &frame_pose);
-        assert!(align(&model, &full, &Pose::identity(), range, &cfg).is_none());
+        assert!(align(&model, &full, None, &Pose::identity(), range, &cfg).is_none());
+    }
+
+    /// A wall at z = 2 m (world frame) painted with a smooth two-way pattern, seen from
+    /// `pose`: its depth and intensity.
+    fn textured_wall(camera: &Camera, pose: &Pose) -> (DepthImage, Intensity) {
+        let (w, h) = (camera.width, camera.height);
+        let mut depth = DepthImage::new(w, h);
+        let mut intensity = Intensity {
+            width: w,
+            height: h,
+            data: vec![0.0; (w * h) as usize],
+        };
+        let origin = pose.translation.vector;
+        for v in 0..h {
+            for u in 0..w {
+                let n = camera.normalized(&Point2::new(u as f64, v as f64));
+                let ray = pose.rotation * Vector3::new(n.x, n.y, 1.0);
+                let t = (2.0 - origin.z) / ray.z;
+                let hit = origin + t * ray;
+                let i = (v * w + u) as usize;
+                // Depth: the hit's z in the camera frame.
+                depth.data[i] = (pose.inverse() * nalgebra::Point3::from(hit)).z as f32;
+                let (x, y) = (hit.x * std::f64::consts::TAU, hit.y * std::f64::consts::TAU);
+                intensity.data[i] = (0.5
+                    + 0.2 * (x / 0.23).sin() * (y / 0.17).cos()
+                    + 0.1 * (x / 0.41 + y / 0.29).sin()) as f32;
+            }
+        }
+        (depth, intensity)
+    }
+
+    #[test]
+    fn photometric_gradient_matches_finite_differences() {
+        let camera = Camera::pinhole(160, 120, 130.0, 130.0, 79.5, 59.5);
+        let rays = Arc::new(RayTable::new(&camera, 1));
+        let (depth, intensity) = textured_wall(&camera, &Pose::identity());
+        let model = DepthModel::new(&depth, &camera, rays, 1, (0.1, 6.0))
+            .unwrap()
+            .with_intensity(&intensity);
+        let mut checked = 0;
+        for p in [[0.1, -0.05, 2.0], [-0.3, 0.2, 1.9], [0.25, 0.15, 2.1]] {
+            let photometric = |p| model.project(p).and_then(|at| model.photometric(&at));
+            let (_, grad) = photometric(p).expect("inside the image");
+            // Central differences over about a pixel (bilinear samples are linear within one).
+            let eps = 0.005;
+            for k in 0..3 {
+                let (mut a, mut b) = (p, p);
+                a[k] -= eps;
+                b[k] += eps;
+                let (ia, _) = photometric(a).unwrap();
+                let (ib, _) = photometric(b).unwrap();
+                let numeric = (ib - ia) / (2.0 * eps);
+                let scale = grad.iter().map(|g| g.abs()).fold(0.0, f64::max);
+                assert!(
+                    (numeric - grad[k]).abs() < 0.1 * scale + 1e-6,
+                    "point {p:?}, axis {k}: numeric {numeric}, analytic {}",
+                    grad[k]
+                );
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 9);
+        // Without an intensity image there is no photometric term.
+        let (depth, _) = textured_wall(&camera, &Pose::identity());
+        let rays = Arc::new(RayTable::new(&camera, 1));
+        let plain = DepthModel::new(&depth, &camera, rays, 1, (0.1, 6.0)).unwrap();
+        let at = plain.project([0.1, -0.05, 2.0]).unwrap();
+        assert!(plain.lookup(&at).is_some() && plain.photometric(&at).is_none());
+    }
+
+    #[test]
+    fn intensity_holds_a_textured_wall_that_depth_alone_cannot() {
+        // A single plane leaves sliding along it unconstrained: ICP refuses. Its texture
+        // constrains the slide, and with the photometric term the shift is found.
+        let camera = Camera::pinhole(160, 120, 130.0, 130.0, 79.5, 59.5);
+        let rays = Arc::new(RayTable::new(&camera, 1));
+        let frame_pose = Pose::from_parts(
+            Translation3::new(0.02, -0.015, 0.01),
+            UnitQuaternion::from_euler_angles(0.004, -0.006, 0.003),
+        );
+        let (kf_depth, kf_intensity) = textured_wall(&camera, &Pose::identity());
+        let (frame_depth, frame_intensity) = textured_wall(&camera, &frame_pose);
+        let range = (0.1, 6.0);
+        let model = DepthModel::new(&kf_depth, &camera, rays, 1, range)
+            .unwrap()
+            .with_intensity(&kf_intensity);
+        let mut cfg = DenseConfig {
+            min_pairs: 100,
+            ..DenseConfig::default()
+        };
+        cfg.levels.push(crate::slam::config::DenseLevel {
+            step: 2,
+            max_distance: 0.02,
+        });
+        let depth_alone = align(&model, &frame_depth, None, &Pose::identity(), range, &cfg);
+        assert!(depth_alone.is_none(), "{depth_alone:?}");
+        cfg.photometric_sigma = 0.02;
+        let a = align(
+            &model,
+            &frame_depth,
+            Some(&frame_intensity),
+            &Pose::identity(),
+            range,
+            &cfg,
+        )
+        .expect("aligned with intensity");
+        let err = frame_pose.inverse() * a.pose;
+        assert!(
+            err.translation.vector.norm() < 2e-3 && err.rotation.angle() < 1e-3,
+            "error {err:?}"
+        );
+        // The frame's exposure changed (gain 0.8, bias +0.05): the fitted brightness absorbs it.
+        let darker = Intensity {
+            data: frame_intensity
+                .data
+                .iter()
+                .map(|i| 0.8 * i + 0.05)
+                .collect(),
+            ..frame_intensity.clone()
+        };
+        let a = align(
+            &model,
+            &frame_depth,
+            Some(&darker),
+            &Pose::identity(),
+            range,
+            &cfg,
+        )
+        .expect("aligned across an exposure change");
+        let err = frame_pose.inverse() * a.pose;
+        assert!(
+            err.translation.vector.norm() < 2e-3 && err.rotation.angle() < 1e-3,
+            "error {err:?} across an exposure change"
+        );
+        // The sigma set to 0 turns the term off again, whatever images are given.
+        cfg.photometric_sigma = 0.0;
+        let off = align(
+            &model,
+            &frame_depth,
+            Some(&frame_intensity),
+            &Pose::identity(),
+            range,
+            &cfg,
+        );
+        assert!(off.is_none(), "{off:?}");
+    }
+
+    #[test]
+    fn only_textured_samples_take_part() {
+        // A vertical ramp of 0.05 per sample between flat halves: its samples pass, flat ones and
+        // the border do not.
+        let (w, h) = (8u32, 6u32);
+        let data = (0..h)
+            .flat_map(|_| (0..w).map(|x| (x.clamp(2, 5) as f32) * 0.05))
+            .collect();
+        let image = Intensity {
+            width: w,
+            height: h,
+            data,
+        };
+        assert!(image.textured(3, 2) && image.textured(4, 3));
+        assert!(!image.textured(1, 2), "flat on both sides");
+        assert!(!image.textured(6, 2) && !image.textured(0, 2) && !image.textured(3, 0));
+    }
+
+    #[test]
+    fn brightness_fit_recovers_gain_and_bias() {
+        let mut sums = IntensitySums::default();
+        for k in 0..200 {
+            let f = 0.2 + 0.003 * k as f64;
+            sums.add(f, 1.25 * f - 0.04);
+        }
+        let b = sums.fit().expect("enough pairs and contrast");
+        assert!(
+            (b.gain - 1.25).abs() < 1e-9 && (b.bias + 0.04).abs() < 1e-9,
+            "{b:?}"
+        );
+        // Halves merged give the same fit.
+        let (mut x, mut y) = (IntensitySums::default(), IntensitySums::default());
+        for k in 0..200 {
+            let f = 0.2 + 0.003 * k as f64;
+            if k % 2 == 0 { &mut x } else { &mut y }.add(f, 1.25 * f - 0.04);
+        }
+        let merged = x.merge(y).fit().expect("the same pairs");
+        assert!((merged.gain - b.gain).abs() < 1e-9 && (merged.bias - b.bias).abs() < 1e-9);
+        // Too few pairs, no contrast, or an implausible gain: no fit.
+        let mut few = IntensitySums::default();
+        (0..50).for_each(|k| few.add(0.01 * k as f64, 0.01 * k as f64));
+        assert_eq!(few.fit(), None);
+        let mut flat = IntensitySums::default();
+        (0..500).for_each(|_| flat.add(0.5, 0.6));
+        assert_eq!(flat.fit(), None);
+        let mut steep = IntensitySums::default();
+        (0..500).for_each(|k| steep.add(0.001 * k as f64, 0.003 * k as f64));
+        assert_eq!(steep.fit(), None);
     }
 
     #[test]
@@ -530,12 +1091,12 @@ pub(crate) mod tests {
         };
         // Enough pairs (every frame point lands on the plane), but sliding along the plane
         // and turning about its normal are unconstrained.
-        let a = align(&model, &depth, &Pose::identity(), range, &cfg);
+        let a = align(&model, &depth, None, &Pose::identity(), range, &cfg);
         assert!(a.is_none(), "{a:?}");
         // A depth image of another size than the camera's: no model, no alignment.
         let small = DepthImage::new(80, 60);
         let rays = Arc::new(RayTable::new(&camera, 1));
         assert!(DepthModel::new(&small, &camera, rays, 1, range).is_none());
-        assert!(align(&model, &small, &Pose::identity(), range, &cfg).is_none());
+        assert!(align(&model, &small, None, &Pose::identity(), range, &cfg).is_none());
     }
 }

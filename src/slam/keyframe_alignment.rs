@@ -11,7 +11,7 @@
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
 use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, align};
+use super::depth_alignment::{DepthModel, Intensity, align};
 use super::map::{ConstraintKind, Map};
 use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
@@ -112,15 +112,21 @@ pub fn keyframe_edges(
         .par_iter()
         .map(|(i, list)| {
             let a = &map.keyframes[*i];
-            let Some(model) =
+            let Some(mut model) =
                 DepthModel::new(&a.view.depth, camera, rays.clone(), d.model_step, range)
             else {
                 return Vec::new();
             };
+            let photometric = d.photometric_sigma > 0.0;
+            if photometric {
+                model = model.with_intensity(&Intensity::from_rgb(&a.view.rgb));
+            }
             list.iter()
                 .filter_map(|p| {
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
-                    let found = align(&model, &map.keyframes[j].view.depth, &initial, range, d)?;
+                    let b = &map.keyframes[j].view;
+                    let intensity = photometric.then(|| Intensity::from_rgb(&b.rgb));
+                    let found = align(&model, &b.depth, intensity.as_ref(), &initial, range, d)?;
                     if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
                         return None;
                     }

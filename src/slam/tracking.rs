@@ -514,7 +514,7 @@ impl Tracker {
         }
         let kf_pose = self.keyframes[reference].pose;
         let initial = kf_pose.inverse() * pose;
-        let kept = align(model, depth, &initial, self.depth_range(), cfg)
+        let kept = align(model, depth, None, &initial, self.depth_range(), cfg)
             .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
             .map(|a| a.pose)
             .filter(|refined| {

@@ -315,6 +315,10 @@ pub struct DenseConfig {
     /// frame is refined again against the adjusted points after bundle adjustment.
     pub prior_sigma_translation: f64,
     pub prior_sigma_rotation_deg: f64,
+    /// Keyframe alignments also compare intensities (0-1 grey levels) with this standard
+    /// deviation: one sigma of intensity weighs as one sigma of the sensor's depth noise at
+    /// 1 m ([`crate::slam::depth_alignment`]); 0: depth alone.
+    pub photometric_sigma: f64,
 }
 
 /// One level of [`DenseConfig::levels`].
@@ -357,6 +361,7 @@ impl Default for DenseConfig {
             sigma_rotation_deg: 0.5,
             prior_sigma_translation: 0.0005,
             prior_sigma_rotation_deg: 0.1,
+            photometric_sigma: 0.0,
         }
     }
 }
@@ -778,6 +783,8 @@ mod tests {
             ("dense", "agree_rotation_deg", "-1"),
             ("dense", "edge_agree_translation", "0"),
             ("dense", "edge_agree_rotation_deg", "nan"),
+            ("dense", "photometric_sigma", "1.5"),
+            ("dense", "photometric_sigma", "-0.1"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
             ("bundle_adjustment", "local_keyframes", "301"),

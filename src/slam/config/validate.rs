@@ -178,6 +178,7 @@ impl SlamConfig {
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         pos(d.prior_sigma_translation, "dense.prior_sigma_translation")?;
         pos(d.prior_sigma_rotation_deg, "dense.prior_sigma_rotation_deg")?;
+        fraction(d.photometric_sigma, "dense.photometric_sigma")?;
         Ok(())
     }
 

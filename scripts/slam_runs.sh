@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # The RGB-D SLAM runs this project chooses settings on, and the held-back runs it reports,
-# with one SLAM configuration: each run's ATE and per-frame RPE (m) and the mean per keypoint
-# type, as a Markdown table.
+# with one SLAM configuration: each run's ATE and per-frame RPE (m) and the mean ATE per
+# keypoint type, as a Markdown table.
 #
 #   scripts/slam_runs.sh selection CONFIG.toml OUT_DIR   # 7-Scenes 0-199, 200-399, 600-699,
 #                                                        # TUM fr1_rpy 0-79: choose here
 #   scripts/slam_runs.sh held-back CONFIG.toml OUT_DIR   # 7-Scenes 400-599, 700-799, 600-799:
 #                                                        # measure once, after choosing
 #
-# Every run: `slam --backend flex --labels none --features {fpfdcnn,orb} --config CONFIG`,
-# two at a time (trajectories do not depend on timing; speeds do, so do not read them here).
-# Needs `cargo build --release` first and the data of ../shared/data (README, "Data
-# formats"; scripts/get_data.sh says where to get it): 7scenes_redkitchen_0_799 and
-# tum_fr1_rpy_head80, or set SEVEN_SCENES / FR1_RPY to other copies in the same layout.
+# Every run: `slam --backend flex --labels none --features {fpfdcnn,orb} --config CONFIG`
+# (FPFDCNN from the bundled weights/fpfdcnn), two at a time: trajectories do not depend on
+# timing; speeds do, so do not read them here. Needs `cargo build --release` first and the
+# data of ../shared/data (README, "Data formats"; scripts/get_data.sh says where to get it):
+# 7scenes_redkitchen_0_799 and tum_fr1_rpy_head80, or set SEVEN_SCENES / FR1_RPY to other
+# copies in the same layout.
 set -euo pipefail
 
 usage() {
@@ -28,13 +29,13 @@ slam="$root/target/release/slam"
 seven=${SEVEN_SCENES:-$root/../shared/data/7scenes_redkitchen_0_799}
 fr1=${FR1_RPY:-$root/../shared/data/tum_fr1_rpy_head80}
 
-# name sequence first count
+# One run a record: name|sequence|first frame|frames.
 case $set_name in
 selection)
-    runs=("s0 $seven 0 200" "s200 $seven 200 200" "s600 $seven 600 100" "fr1 $fr1 0 80")
+    runs=("s0|$seven|0|200" "s200|$seven|200|200" "s600|$seven|600|100" "fr1|$fr1|0|80")
     ;;
 held-back)
-    runs=("h400 $seven 400 200" "h700 $seven 700 100" "h600 $seven 600 200")
+    runs=("h400|$seven|400|200" "h700|$seven|700|100" "h600|$seven|600|200")
     ;;
 *)
     usage
@@ -42,9 +43,8 @@ held-back)
 esac
 [ -x "$slam" ] || { echo "error: $slam not found: run cargo build --release first" >&2; exit 1; }
 [ -f "$config" ] || { echo "error: config $config not found" >&2; exit 1; }
-
 for r in "${runs[@]}"; do
-    read -r _ seq _ _ <<<"$r"
+    IFS='|' read -r _ seq _ _ <<<"$r"
     [ -f "$seq/rgb.txt" ] || { echo "error: no TUM-layout sequence at $seq (rgb.txt missing)" >&2; exit 1; }
 done
 mkdir -p "$out"
@@ -58,26 +58,32 @@ run() { # name sequence first count features
     fi
 }
 
+failed=0
 for features in fpfdcnn orb; do
     pids=()
     for r in "${runs[@]}"; do
-        read -r name seq first count <<<"$r"
+        IFS='|' read -r name seq first count <<<"$r"
         run "$name" "$seq" "$first" "$count" "$features" &
         pids+=($!)
         if [ ${#pids[@]} -eq 2 ]; then
-            for p in "${pids[@]}"; do wait "$p"; done
+            for p in "${pids[@]}"; do wait "$p" || failed=1; done
             pids=()
         fi
     done
-    for p in "${pids[@]}"; do wait "$p"; done
+    for p in ${pids[@]+"${pids[@]}"}; do wait "$p" || failed=1; done
 done
 
-# The RMSE column of report.md's ATE and per-frame RPE rows.
-rmse() { grep -m1 "$2" "$1/report.md" | awk -F'|' '{gsub(/ /, "", $3); print $3}'; }
+# The RMSE column of a report.md row ("| ATE Se3-aligned (m) | rmse | mean | ..."); n/a
+# when the run wrote no such row.
+rmse() {
+    local v
+    v=$(grep -F -m1 "$2" "$1/report.md" 2>/dev/null | awk -F'|' '{gsub(/ /, "", $3); print $3}') || true
+    echo "${v:-n/a}"
+}
 echo "| run | FPFDCNN ATE / RPE | ORB ATE / RPE |"
 echo "|---|---|---|"
 for r in "${runs[@]}"; do
-    read -r name seq first count <<<"$r"
+    IFS='|' read -r name seq first count <<<"$r"
     row="| $name ($(basename "$seq") $first+$count) |"
     for features in fpfdcnn orb; do
         d="$out/${name}_$features"
@@ -87,7 +93,11 @@ for r in "${runs[@]}"; do
 done
 for features in fpfdcnn orb; do
     for r in "${runs[@]}"; do
-        read -r name _ _ _ <<<"$r"
+        IFS='|' read -r name _ _ _ <<<"$r"
         rmse "$out/${name}_$features" 'ATE Se3-aligned'
-    done | awk -v f="$features" '{s += $1; n++} END {printf "mean ATE, %s: %.4f m over %d runs\n", f, s / n, n}'
+    done | awk -v f="$features" '
+        $1 ~ /^[0-9.]+$/ { s += $1; n++ }
+        END { if (n) printf "mean ATE, %s: %.4f m over %d runs\n", f, s / n, n
+              else printf "mean ATE, %s: no runs\n", f }'
 done
+exit "$failed"

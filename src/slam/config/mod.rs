@@ -785,6 +785,8 @@ mod tests {
             ("dense", "edge_agree_rotation_deg", "nan"),
             ("dense", "photometric_sigma", "1.5"),
             ("dense", "photometric_sigma", "-0.1"),
+            ("dense", "photometric_sigma", "1e-9"),
+            ("dense", "photometric_sigma", "nan"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
             ("bundle_adjustment", "local_keyframes", "301"),

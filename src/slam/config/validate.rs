@@ -178,7 +178,13 @@ impl SlamConfig {
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         pos(d.prior_sigma_translation, "dense.prior_sigma_translation")?;
         pos(d.prior_sigma_rotation_deg, "dense.prior_sigma_rotation_deg")?;
-        fraction(d.photometric_sigma, "dense.photometric_sigma")?;
+        // 0 turns it off; a tiny sigma would overflow the photometric weights.
+        let sigma = d.photometric_sigma;
+        if sigma != 0.0 && !(1e-3..=1.0).contains(&sigma) {
+            return Err(format!(
+                "dense.photometric_sigma must be 0 (off) or in [0.001, 1], got {sigma}"
+            ));
+        }
         Ok(())
     }
 

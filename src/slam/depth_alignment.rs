@@ -20,7 +20,7 @@ use super::pose_graph::se3_exp;
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
-use image::RgbImage;
+use crate::raster::GrayF32;
 use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -31,50 +31,27 @@ fn fits(rays: &RayTable, depth: &DepthImage) -> bool {
     (depth.width, depth.height) == (rays.width, rays.height)
 }
 
-/// A grey image (0-1) sampled as a depth image is, for the photometric term.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Intensity {
-    width: u32,
-    height: u32,
-    /// Row-major, `width × height` values ([`Intensity::from_rgb`] is the one way to make
-    /// one outside this module).
-    data: Vec<f32>,
+/// Least intensity gradient (half the sum of the central differences' magnitudes along x and
+/// y, per sample) of a frame sample that takes part in the photometric term: flat samples
+/// carry little information and cost as much (about 40 % of a 7-Scenes kitchen image's
+/// samples at the fusion resolution pass).
+pub const MIN_GRADIENT: f32 = 0.02;
+
+/// Whether the sample at `(x, y)` of `image` has [`MIN_GRADIENT`]; not at the border.
+fn textured(image: &GrayF32, x: usize, y: usize) -> bool {
+    let (w, h) = (image.width, image.height);
+    if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
+        return false;
+    }
+    let gx = (image.get(x + 1, y) - image.get(x - 1, y)).abs();
+    let gy = (image.get(x, y + 1) - image.get(x, y - 1)).abs();
+    0.5 * (gx + gy) >= MIN_GRADIENT
 }
 
-impl Intensity {
-    /// Least intensity gradient (sum of the central differences' magnitudes along x and y,
-    /// per sample) of a frame sample that takes part in the photometric term: flat samples
-    /// carry little information and cost as much (about 40 % of a 7-Scenes kitchen image's
-    /// samples at the fusion resolution pass).
-    pub const MIN_GRADIENT: f32 = 0.02;
-
-    /// Whether the sample at `(x, y)` has [`Intensity::MIN_GRADIENT`]; not at the border.
-    fn textured(&self, x: usize, y: usize) -> bool {
-        let (w, h) = (self.width as usize, self.height as usize);
-        if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
-            return false;
-        }
-        let at = |x: usize, y: usize| self.data[y * w + x];
-        let gx = (at(x + 1, y) - at(x - 1, y)).abs();
-        let gy = (at(x, y + 1) - at(x, y - 1)).abs();
-        0.5 * (gx + gy) >= Self::MIN_GRADIENT
-    }
-
-    /// Rec. 601 luma of `rgb`, scaled to 0-1.
-    pub fn from_rgb(rgb: &RgbImage) -> Self {
-        let data = rgb
-            .pixels()
-            .map(|p| {
-                let [r, g, b] = p.0.map(f32::from);
-                (0.299 * r + 0.587 * g + 0.114 * b) / 255.0
-            })
-            .collect();
-        Intensity {
-            width: rgb.width(),
-            height: rgb.height(),
-            data,
-        }
-    }
+/// Whether `image` (intensities 0-1, [`GrayF32::from_rgb`]) is sampled as `rays` is.
+fn fits_intensity(rays: &RayTable, image: &GrayF32) -> bool {
+    (image.width, image.height) == (rays.width as usize, rays.height as usize)
+        && image.data.len() == image.width * image.height
 }
 
 /// A model's intensity with the central-difference gradients of its 3x3-binomial-smoothed
@@ -87,9 +64,9 @@ struct IntensityModel {
 }
 
 impl IntensityModel {
-    fn new(image: &Intensity) -> Self {
-        let (w, h) = (image.width as usize, image.height as usize);
-        let at = |x: usize, y: usize| image.data[y * w + x];
+    fn new(image: &GrayF32) -> Self {
+        let (w, h) = (image.width, image.height);
+        let at = |x: usize, y: usize| image.get(x, y);
         // Separable [1 2 1] / 4, edges clamped.
         let blur_x: Vec<f32> = (0..h)
             .flat_map(|y| (0..w).map(move |x| (x, y)))
@@ -246,8 +223,8 @@ impl DepthModel {
 
     /// The model with the keyframe's intensity (sampled as its depth is) for the photometric
     /// term; unchanged when `image` is not sampled as the model's depth.
-    pub fn with_intensity(mut self, image: &Intensity) -> Self {
-        if (image.width, image.height) == (self.rays.width, self.rays.height) {
+    pub fn with_intensity(mut self, image: &GrayF32) -> Self {
+        if fits_intensity(&self.rays, image) {
             self.intensity = Some(IntensityModel::new(image));
         }
         self
@@ -349,7 +326,7 @@ pub struct Alignment {
 pub fn align(
     model: &DepthModel,
     depth: &DepthImage,
-    intensity: Option<&Intensity>,
+    intensity: Option<&GrayF32>,
     initial: &Pose,
     range: (f64, f64),
     cfg: &DenseConfig,
@@ -359,9 +336,7 @@ pub fn align(
         return None;
     }
     let intensity = intensity.filter(|i| {
-        cfg.photometric_sigma > 0.0
-            && model.intensity.is_some()
-            && (i.width, i.height) == (depth.width, depth.height)
+        cfg.photometric_sigma > 0.0 && model.intensity.is_some() && fits_intensity(rays, i)
     });
     let mut weights = Weights {
         max_sq: 0.0,
@@ -389,7 +364,7 @@ pub fn align(
                 (z > range.0 && z < range.1).then(|| Sample {
                     point: rays.point(u, v, z).coords,
                     intensity: intensity
-                        .filter(|im| im.textured(u, v))
+                        .filter(|im| textured(im, u, v))
                         .map_or(f32::NAN, |im| im.data[i]),
                 })
             })
@@ -880,14 +855,10 @@ pub(crate) mod tests {
 
     /// A wall at z = 2 m (world frame) painted with a smooth two-way pattern, seen from
     /// `pose`: its depth and intensity.
-    fn textured_wall(camera: &Camera, pose: &Pose) -> (DepthImage, Intensity) {
+    fn textured_wall(camera: &Camera, pose: &Pose) -> (DepthImage, GrayF32) {
         let (w, h) = (camera.width, camera.height);
         let mut depth = DepthImage::new(w, h);
-        let mut intensity = Intensity {
-            width: w,
-            height: h,
-            data: vec![0.0; (w * h) as usize],
-        };
+        let mut intensity = GrayF32::new(w as usize, h as usize);
         let origin = pose.translation.vector;
         for v in 0..h {
             for u in 0..w {
@@ -917,11 +888,7 @@ pub(crate) mod tests {
             let (w, h) = (camera.width / stride, camera.height / stride);
             let keep = |x: u32, y: u32| ((y * stride) * camera.width + x * stride) as usize;
             let mut depth = DepthImage::new(w, h);
-            let mut intensity = Intensity {
-                width: w,
-                height: h,
-                data: vec![0.0; (w * h) as usize],
-            };
+            let mut intensity = GrayF32::new(w as usize, h as usize);
             for y in 0..h {
                 for x in 0..w {
                     let i = (y * w + x) as usize;
@@ -1009,7 +976,7 @@ pub(crate) mod tests {
             "error {err:?}"
         );
         // The frame's exposure changed (gain 0.8, bias +0.05): the fitted brightness absorbs it.
-        let darker = Intensity {
+        let darker = GrayF32 {
             data: frame_intensity
                 .data
                 .iter()
@@ -1037,7 +1004,7 @@ pub(crate) mod tests {
         let rays = Arc::new(RayTable::new(&camera, 1));
         let source: Vec<Sample> = (0..camera.height as usize)
             .flat_map(|v| (0..camera.width as usize).map(move |u| (u, v)))
-            .filter(|&(u, v)| darker.textured(u, v))
+            .filter(|&(u, v)| textured(&darker, u, v))
             .map(|(u, v)| {
                 let i = v * camera.width as usize + u;
                 Sample {
@@ -1078,18 +1045,28 @@ pub(crate) mod tests {
     fn only_textured_samples_take_part() {
         // A ramp along x of 0.05 per sample between flat parts: its samples pass, flat ones and
         // the border do not.
-        let (w, h) = (8u32, 6u32);
+        let (w, h) = (8, 6);
         let data = (0..h)
-            .flat_map(|_| (0..w).map(|x| (x.clamp(2, 5) as f32) * 0.05))
+            .flat_map(|_| (0..w).map(|x: usize| (x.clamp(2, 5) as f32) * 0.05))
             .collect();
-        let image = Intensity {
+        let image = GrayF32 {
             width: w,
             height: h,
             data,
         };
-        assert!(image.textured(3, 2) && image.textured(4, 3));
-        assert!(!image.textured(1, 2), "flat on both sides");
-        assert!(!image.textured(6, 2) && !image.textured(0, 2) && !image.textured(3, 0));
+        let at = |x, y| textured(&image, x, y);
+        assert!(at(3, 2) && at(4, 3));
+        assert!(!at(1, 2), "flat on both sides");
+        assert!(!at(6, 2) && !at(0, 2) && !at(3, 0));
+        // An image of another size than the model's, or with too few values, is not used.
+        let rays = RayTable::new(&Camera::pinhole(8, 6, 5.0, 5.0, 4.0, 3.0), 1);
+        assert!(fits_intensity(&rays, &image));
+        let short = GrayF32 {
+            data: vec![0.0; 10],
+            ..image.clone()
+        };
+        assert!(!fits_intensity(&rays, &short));
+        assert!(!fits_intensity(&rays, &GrayF32::new(4, 3)));
     }
 
     #[test]

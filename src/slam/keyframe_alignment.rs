@@ -11,11 +11,12 @@
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
 use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, Intensity, align};
+use super::depth_alignment::{DepthModel, align};
 use super::map::{ConstraintKind, Map};
 use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
 use crate::geometry::Pose;
+use crate::raster::GrayF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -119,13 +120,13 @@ pub fn keyframe_edges(
             };
             let photometric = d.photometric_sigma > 0.0;
             if photometric {
-                model = model.with_intensity(&Intensity::from_rgb(&a.view.rgb));
+                model = model.with_intensity(&GrayF32::from_rgb(&a.view.rgb));
             }
             list.iter()
                 .filter_map(|p| {
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
                     let b = &map.keyframes[j].view;
-                    let intensity = photometric.then(|| Intensity::from_rgb(&b.rgb));
+                    let intensity = photometric.then(|| GrayF32::from_rgb(&b.rgb));
                     let found = align(&model, &b.depth, intensity.as_ref(), &initial, range, d)?;
                     if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
                         return None;

@@ -107,6 +107,16 @@ pub fn keyframe_edges(
     let information = information(d.sigma_translation, d.sigma_rotation_deg);
     let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
     summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
+    // With the photometric term, each keyframe's intensity once (a keyframe takes part in
+    // several pairs, on either side).
+    let intensities: Vec<GrayF32> = if d.photometric_sigma > 0.0 {
+        map.keyframes
+            .par_iter()
+            .map(|k| GrayF32::from_rgb(&k.view.rgb))
+            .collect()
+    } else {
+        Vec::new()
+    };
     // One model at a time per thread: a keyframe's model is built once and every keyframe
     // paired with it is aligned to it.
     let per_model: Vec<Vec<(Edge, f64, bool)>> = groups
@@ -118,16 +128,14 @@ pub fn keyframe_edges(
             else {
                 return Vec::new();
             };
-            let photometric = d.photometric_sigma > 0.0;
-            if photometric {
-                model = model.with_intensity(&GrayF32::from_rgb(&a.view.rgb));
+            if let Some(intensity) = intensities.get(*i) {
+                model = model.with_intensity(intensity);
             }
             list.iter()
                 .filter_map(|p| {
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
-                    let b = &map.keyframes[j].view;
-                    let intensity = photometric.then(|| GrayF32::from_rgb(&b.rgb));
-                    let found = align(&model, &b.depth, intensity.as_ref(), &initial, range, d)?;
+                    let depth = &map.keyframes[j].view.depth;
+                    let found = align(&model, depth, intensities.get(j), &initial, range, d)?;
                     if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
                         return None;
                     }

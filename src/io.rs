@@ -69,6 +69,63 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.tmp"))
 }
 
+/// A folder of its own under the system's temporary folder, `sdf_<name>_<pid>`, removed
+/// with everything in it when dropped: what tests write leaves nothing behind. While a
+/// thread is panicking (a failing test) the folder stays for a look, and its path is
+/// printed. Leftovers of an earlier process with the same id are removed first.
+#[derive(Debug)]
+pub struct ScratchDir(PathBuf);
+
+impl ScratchDir {
+    /// The folder, created empty.
+    pub fn new(name: &str) -> std::io::Result<Self> {
+        let dir = Self::unmade(name);
+        std::fs::create_dir_all(&dir.0)?;
+        Ok(dir)
+    }
+
+    /// The folder's path with nothing there (for a program that must create it), still
+    /// removed when dropped.
+    pub fn unmade(name: &str) -> Self {
+        let path = std::env::temp_dir().join(format!("sdf_{name}_{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&path);
+        ScratchDir(path)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl std::ops::Deref for ScratchDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for ScratchDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for ScratchDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("kept {} (the test failed)", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
 /// A data line of a TUM-style text file: its 1-based line number and fields.
 #[derive(Debug, Clone)]
 pub struct Record<'a> {
@@ -143,6 +200,39 @@ mod tests {
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "two");
         assert!(!temp_path(&path).exists());
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn scratch_dirs_are_removed_when_dropped_and_kept_when_a_test_fails() {
+        let dir = ScratchDir::new("io_scratch").unwrap();
+        let path = dir.to_path_buf();
+        std::fs::create_dir_all(dir.join("a/b")).unwrap();
+        std::fs::write(dir.join("a/b/c.txt"), "x").unwrap();
+        // A second one of the same name starts empty (an earlier run's leftovers).
+        std::mem::forget(dir);
+        let again = ScratchDir::new("io_scratch").unwrap();
+        assert!(again.is_dir() && !again.join("a").exists());
+        drop(again);
+        assert!(!path.exists());
+        // Not made until asked, still removed.
+        let unmade = ScratchDir::unmade("io_scratch_unmade");
+        assert!(!unmade.exists());
+        std::fs::create_dir_all(unmade.join("out")).unwrap();
+        let path = unmade.to_path_buf();
+        drop(unmade);
+        assert!(!path.exists());
+        // Dropped while its thread panics: kept.
+        let kept = std::thread::spawn(|| {
+            let d = ScratchDir::new("io_scratch_panic").unwrap();
+            let p = d.to_path_buf();
+            let _d = d;
+            std::panic::panic_any(p);
+        })
+        .join()
+        .unwrap_err();
+        let kept = kept.downcast::<PathBuf>().unwrap();
+        assert!(kept.is_dir());
+        std::fs::remove_dir_all(*kept).unwrap();
     }
 
     #[test]

@@ -168,10 +168,8 @@ mod tests {
     use super::*;
     use crate::geometry::pose_from_tum;
 
-    fn tmp(name: &str) -> std::path::PathBuf {
-        let dir = std::env::temp_dir().join(format!("sdf_traj_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir.join(name)
+    fn tmp(name: &str) -> crate::io::ScratchDir {
+        crate::io::ScratchDir::new(&format!("traj_{name}")).unwrap()
     }
 
     #[test]
@@ -187,7 +185,8 @@ mod tests {
             pose_from_tum([1.5, 2.0, 3.0], [0.1, 0.2, 0.3, 0.9]).unwrap(),
         )
         .unwrap();
-        let p = tmp("rt.txt");
+        let dir = tmp("rt");
+        let p = dir.join("rt.txt");
         t.write_tum(&p).unwrap();
         let r = Trajectory::read_tum(&p).unwrap();
         assert_eq!(r.stamps, t.stamps);
@@ -215,8 +214,9 @@ mod tests {
             ("1 0 0 nan 0 0 0 1\n", ":1:", "not finite"),
             ("1 0 0 0 0 0 0 0\n", ":1:", "quaternion"),
         ];
+        let dir = tmp("bad");
         for (i, (text, at, what)) in cases.iter().enumerate() {
-            let p = tmp(&format!("bad{i}.txt"));
+            let p = dir.join(format!("bad{i}.txt"));
             std::fs::write(&p, text).unwrap();
             let e = Trajectory::read_tum(&p).unwrap_err().to_string();
             assert!(
@@ -224,7 +224,8 @@ mod tests {
                 "{e}"
             );
         }
-        let p = tmp("empty.txt");
+        let dir = tmp("empty");
+        let p = dir.join("empty.txt");
         std::fs::write(&p, "# nothing\n").unwrap();
         assert!(
             Trajectory::read_tum(&p)
@@ -232,6 +233,6 @@ mod tests {
                 .to_string()
                 .contains("no poses")
         );
-        assert!(Trajectory::read_tum(tmp("missing.txt")).is_err());
+        assert!(Trajectory::read_tum(tmp("missing").join("missing.txt")).is_err());
     }
 }

@@ -4,7 +4,7 @@
 mod common;
 
 use sdf_slam::training::{RunDir, RunOptions};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const CONFIG: &str = r#"
 model = "fpfdcnn"
@@ -34,7 +34,7 @@ max_matches = 16
 exclusion_px = 2.0
 "#;
 
-fn tmp(name: &str) -> PathBuf {
+fn tmp(name: &str) -> common::ScratchDir {
     common::fresh_path("fptrain", name)
 }
 
@@ -63,14 +63,14 @@ fn resumed_training_continues_exactly() {
     );
     run(&split, 2, true).unwrap();
     let a = RunDir {
-        root: full.clone(),
+        root: full.to_path_buf(),
         keep: 0,
     }
     .latest()
     .unwrap()
     .unwrap();
     let b = RunDir {
-        root: split.clone(),
+        root: split.to_path_buf(),
         keep: 0,
     }
     .latest()
@@ -126,7 +126,7 @@ fn resumed_training_continues_exactly() {
 fn bad_configs_are_clear_errors() {
     let out = tmp("bad");
     let opts = RunOptions {
-        out: Some(out.clone()),
+        out: Some(out.to_path_buf()),
         quiet: true,
         ..Default::default()
     };

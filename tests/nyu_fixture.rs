@@ -5,11 +5,11 @@ mod common;
 
 use sdf_slam::dataset::{LabelImage, NyuDataset};
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const NYU: &str = "datasets/fixtures/nyuv2";
 
-fn tmp(name: &str) -> PathBuf {
+fn tmp(name: &str) -> common::ScratchDir {
     common::fresh_dir("nyu", name)
 }
 

@@ -6,14 +6,14 @@ mod common;
 
 use hdf5_pure::FileBuilder;
 use sdf_slam::dataset::{NyuDataset, NyuMat};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 const MAT: &str = "datasets/fixtures/nyuv2_mat/nyu_depth_v2_labeled_fixture.mat";
 const PNG: &str = "datasets/fixtures/nyuv2";
 const TEST_SPLIT: &str = "datasets/meta/nyuv2/splits_test_1based.txt";
 
-fn tmp(name: &str) -> PathBuf {
+fn tmp(name: &str) -> common::ScratchDir {
     common::fresh_dir("nyu_mat", name)
 }
 

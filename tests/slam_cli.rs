@@ -14,7 +14,7 @@ use std::process::Command;
 
 const FIXTURE: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
-fn tmp_dir(name: &str) -> PathBuf {
+fn tmp_dir(name: &str) -> common::ScratchDir {
     common::fresh_dir("slamcli", name)
 }
 

@@ -27,7 +27,7 @@ const FRAMES: usize = 16;
 /// The depth the test network predicts everywhere, metres.
 const PLANE: f32 = 2.0;
 
-fn tmp_dir(name: &str) -> PathBuf {
+fn tmp_dir(name: &str) -> common::ScratchDir {
     common::fresh_dir("slamnet", name)
 }
 
@@ -36,7 +36,7 @@ fn tmp_dir(name: &str) -> PathBuf {
 fn sequence() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dest = tmp_dir("seq").join("default_sequence");
+        let dest = common::shared_dir("slamnet_seq").join("default_sequence");
         let mut cfg = default_sequence_config();
         cfg.frames = FRAMES;
         cfg.resolution = "160x120".into();
@@ -74,7 +74,7 @@ impl ModuleMapper for ConstantDepth {
 fn checkpoint() -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = tmp_dir("ckpt");
+        let dir = common::shared_dir("slamnet_ckpt");
         let device = BackendKind::Ndarray.device().expect("ndarray");
         let model: Sdfcnn =
             sdf_slam::nn::seeded_init(common::tiny_sdfcnn_config().init(&device).unwrap(), 7);

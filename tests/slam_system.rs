@@ -25,7 +25,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 const FIXTURE: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
-fn tmp_dir(name: &str) -> PathBuf {
+fn tmp_dir(name: &str) -> common::ScratchDir {
     common::fresh_dir("slam", name)
 }
 
@@ -229,7 +229,7 @@ fn box_room_sequence(dir: &Path, n: usize) {
 fn box_room() -> PathBuf {
     static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     DIR.get_or_init(|| {
-        let d = tmp_dir("box_room");
+        let d = common::shared_dir("slam_box_room");
         box_room_sequence(&d, 24);
         d
     })

@@ -10,11 +10,11 @@ use sdf_slam::dataset::{TumConfig, TumSequence};
 use sdf_slam::features::{HarrisConfig, harris_corners, patch};
 use sdf_slam::geometry::Pose;
 use sdf_slam::raster::GrayF32;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const SEQ: &str = "datasets/fixtures/tum_fr1_rpy_head10";
 
-fn tmp_dir(name: &str) -> PathBuf {
+fn tmp_dir(name: &str) -> common::ScratchDir {
     common::fresh_dir("tum", name)
 }
 

@@ -517,11 +517,8 @@ mod tests {
     use super::*;
     use nalgebra::Point3;
 
-    fn dir(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("sdf_7scenes_{name}_{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    fn dir(name: &str) -> crate::io::ScratchDir {
+        crate::io::ScratchDir::new(&format!("7scenes_{name}")).unwrap()
     }
 
     /// Registers a plane `n . X = d` (depth-camera coordinates) seen by `reg.depth` and

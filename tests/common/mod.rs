@@ -2,21 +2,29 @@
 //! `mod common;`).
 #![allow(dead_code)]
 
+pub use sdf_slam::io::ScratchDir;
 use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnConfig, SdfcnnPredictor};
 use std::path::{Path, PathBuf};
 
 /// A path under the system's temporary folder unique to this test process,
-/// `sdf_<group>_<name>_<pid>`, with nothing there (an earlier run's leftovers removed).
-pub fn fresh_path(group: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("sdf_{group}_{name}_{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// `sdf_<group>_<name>_<pid>`, with nothing there (an earlier run's leftovers removed);
+/// removed with what the test wrote there when it goes out of scope.
+pub fn fresh_path(group: &str, name: &str) -> ScratchDir {
+    ScratchDir::unmade(&format!("{group}_{name}"))
 }
 
 /// Like [`fresh_path`], the folder created empty.
-pub fn fresh_dir(group: &str, name: &str) -> PathBuf {
-    let d = fresh_path(group, name);
+pub fn fresh_dir(group: &str, name: &str) -> ScratchDir {
+    ScratchDir::new(&format!("{group}_{name}")).unwrap()
+}
+
+/// A folder for fixtures a whole test binary shares (built once behind a `OnceLock`, whose
+/// value is never dropped): `<target>/tmp/<name>`, emptied when first asked for in a run, so
+/// repeated runs reuse one folder instead of leaving one each behind.
+pub fn shared_dir(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
     d
 }

@@ -109,9 +109,12 @@ impl Sim3 {
     /// Applies the transform to a camera pose as evo does: positions are scaled
     /// first, then the rigid part is left-multiplied.
     pub fn transform_pose(&self, pose: &Pose) -> Pose {
-        // Bounded: `from_matrix` may never return (see [`nearest_rotation`]).
-        let r =
-            UnitQuaternion::from_matrix_eps(&self.rotation, 1e-12, 100, UnitQuaternion::identity());
+        // Closed form, not `from_matrix`, which may never return (see [`nearest_rotation`]);
+        // a non-finite rotation stays non-finite.
+        let r = UnitQuaternion::from_rotation_matrix(
+            &nearest_rotation(&self.rotation)
+                .unwrap_or_else(|| Rotation3::from_matrix_unchecked(self.rotation)),
+        );
         let t = self.scale * (self.rotation * pose.translation.vector) + self.translation;
         Isometry3::from_parts(Translation3::from(t), r * pose.rotation)
     }

@@ -6,7 +6,7 @@
 //! `brightness:D`, `contrast:F`, `noise:SIGMA`, `gaussian:SIGMA`, `motion:K`.
 
 use crate::error::{Error, Result};
-use crate::raster::GrayF32;
+use crate::raster::{GrayF32, MAX_BLUR_SIGMA, MAX_MOTION_KERNEL};
 use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
 
@@ -118,16 +118,24 @@ impl Degradation {
             "brightness" => Ok(Degradation::Brightness(float()?)),
             "contrast" => Ok(Degradation::Contrast(non_negative(float()?)?)),
             "noise" => Ok(Degradation::Noise(non_negative(float()?)?)),
-            "gaussian" | "gauss" => Ok(Degradation::Gaussian(non_negative(float()?)?)),
+            "gaussian" | "gauss" => {
+                let sigma = non_negative(float()?)?;
+                if sigma > MAX_BLUR_SIGMA {
+                    return Err(Error::msg(format!(
+                        "degradation '{spec}': the blur must be at most {MAX_BLUR_SIGMA} pixels"
+                    )));
+                }
+                Ok(Degradation::Gaussian(sigma))
+            }
             "motion" => value
                 .trim()
                 .parse::<usize>()
                 .ok()
-                .filter(|&k| k >= 1)
+                .filter(|&k| (1..=MAX_MOTION_KERNEL).contains(&k))
                 .map(Degradation::Motion)
                 .ok_or_else(|| {
                     Error::msg(format!(
-                        "degradation '{spec}': the motion kernel length must be a positive integer"
+                        "degradation '{spec}': the motion kernel length must be an integer in 1..={MAX_MOTION_KERNEL}"
                     ))
                 }),
             other => Err(Error::msg(format!(
@@ -202,6 +210,12 @@ impl PhotometricAugment {
                 "augment.noise_sigma, gaussian_sigma and contrast must not be negative".into(),
             );
         }
+        if self.gaussian_sigma[1] > MAX_BLUR_SIGMA {
+            return Err(format!(
+                "augment.gaussian_sigma must be at most {MAX_BLUR_SIGMA} pixels, got {}",
+                self.gaussian_sigma[1]
+            ));
+        }
         for (p, what) in [
             (self.gaussian_prob, "gaussian_prob"),
             (self.motion_prob, "motion_prob"),
@@ -213,9 +227,9 @@ impl PhotometricAugment {
             }
         }
         let [a, b] = self.motion_kernel;
-        if !(a >= 1 && a <= b && b <= 255) {
+        if !(a >= 1 && a <= b && b <= MAX_MOTION_KERNEL) {
             return Err(format!(
-                "augment.motion_kernel [{a}, {b}] must be an ordered pair of lengths in 1..=255"
+                "augment.motion_kernel [{a}, {b}] must be an ordered pair of lengths in 1..={MAX_MOTION_KERNEL}"
             ));
         }
         Ok(())
@@ -356,12 +370,30 @@ mod tests {
             "motion",
             "motion:0",
             "motion:x",
+            "motion:100000",
+            "gaussian:1e5",
             "blur:3",
             "noise:-1",
             "contrast:nan",
         ] {
             assert!(Degradation::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn augmentation_blurs_are_bounded() {
+        let ok = PhotometricAugment::default();
+        assert!(ok.validate().is_ok());
+        let wide = PhotometricAugment {
+            gaussian_sigma: [0.5, 1e5],
+            ..ok.clone()
+        };
+        assert!(wide.validate().unwrap_err().contains("gaussian_sigma"));
+        let long = PhotometricAugment {
+            motion_kernel: [3, 100_000],
+            ..ok
+        };
+        assert!(long.validate().unwrap_err().contains("motion_kernel"));
     }
 
     #[test]

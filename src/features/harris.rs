@@ -1,7 +1,7 @@
 //! Harris corner detector (Harris & Stephens 1988): the corners the paper uses
 //! as FPFDCNN's detector targets (section V-B).
 
-use crate::raster::GrayF32;
+use crate::raster::{GrayF32, MAX_BLUR_SIGMA};
 use serde::{Deserialize, Serialize};
 
 /// A detected keypoint at pixel `(x, y)` with its response.
@@ -36,9 +36,9 @@ impl HarrisConfig {
         if !(self.k.is_finite() && self.k > 0.0 && self.k < 0.25) {
             return Err(format!("harris k must be in (0, 0.25), got {}", self.k));
         }
-        if !(self.sigma.is_finite() && self.sigma > 0.0 && self.sigma <= 16.0) {
+        if !(self.sigma.is_finite() && self.sigma > 0.0 && self.sigma <= MAX_BLUR_SIGMA) {
             return Err(format!(
-                "harris sigma must be in (0, 16] pixels, got {}",
+                "harris sigma must be in (0, {MAX_BLUR_SIGMA}] pixels, got {}",
                 self.sigma
             ));
         }

@@ -12,6 +12,7 @@ use super::packed::PackedFpfdcnn;
 use crate::error::{Error, Result};
 use crate::nn::weights::load_into;
 use crate::nn::{BackendKind, sample_bilinear_at};
+use crate::raster::MAX_BLUR_SIGMA;
 use crate::training::resolve_checkpoint;
 use burn::prelude::*;
 use image::GrayImage;
@@ -73,9 +74,9 @@ impl DetectorConfig {
                 self.threshold
             ));
         }
-        if !(self.smoothing.is_finite() && self.smoothing >= 0.0) {
+        if !(self.smoothing.is_finite() && (0.0..=MAX_BLUR_SIGMA).contains(&self.smoothing)) {
             return Err(format!(
-                "smoothing must be a non-negative number of pixels (0: off), got {}",
+                "smoothing must be in [0, {MAX_BLUR_SIGMA}] pixels (0: off), got {}",
                 self.smoothing
             ));
         }

@@ -133,7 +133,10 @@ pub fn umeyama(x: &[Point3<f64>], y: &[Point3<f64>], with_scale: bool) -> Result
         cov += (py.coords - mean_y) * (px.coords - mean_x).transpose();
     }
     cov /= n;
-    let svd = cov.svd(true, true);
+    // `svd` iterates without a bound; with one (1000 sweeps) the result is the same.
+    let Some(svd) = cov.try_svd(true, true, 5.0 * f64::EPSILON, 1000) else {
+        return Err(Error::msg("Umeyama alignment: SVD did not converge"));
+    };
     let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
         return Err(Error::msg("Umeyama alignment: SVD failed"));
     };

@@ -268,7 +268,8 @@ fn nearest_rotation(m: &Matrix3<f64>) -> Option<Rotation3<f64>> {
     if m.iter().any(|v| !v.is_finite()) {
         return None;
     }
-    let svd = m.svd(true, true);
+    // nalgebra's `svd` iterates without a bound; 1000 sweeps are far more than a 3x3 needs.
+    let svd = m.try_svd(true, true, 5.0 * f64::EPSILON, 1000)?;
     let (u, vt) = (svd.u?, svd.v_t?);
     if svd.singular_values.min() < 1e-9 * svd.singular_values.max() {
         return None;

@@ -385,7 +385,9 @@ pub fn align(
                 return None;
             }
             // A plane or a corridor leaves a direction unconstrained: refuse rather than drift.
-            let eig = h.symmetric_eigenvalues();
+            // (`try_symmetric_eigen`: `symmetric_eigenvalues` iterates without a bound, and
+            // nalgebra issue #1025 is a rank-deficient matrix on which it never returns.)
+            let eig = h.try_symmetric_eigen(f64::EPSILON, 1000)?.eigenvalues;
             if eig.min() < 1e-6 * eig.max().max(1e-12) {
                 return None;
             }

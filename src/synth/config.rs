@@ -364,8 +364,10 @@ impl SynthConfig {
         if self.frames == 0 && self.output.sequence {
             return bad("frames must be at least 1 when sequences are written");
         }
-        if !(self.fps.is_finite() && self.fps > 0.0 && self.fps <= 1000.0) {
-            return bad("fps must be in (0, 1000]");
+        if !(self.fps.is_finite() && (1.0..=1000.0).contains(&self.fps)) {
+            return bad(
+                "fps must be in [1, 1000] (the trajectory is planned for the whole duration)",
+            );
         }
         if !(self.start_time.is_finite() && self.start_time >= 0.0) {
             return bad("start_time must be a non-negative number of seconds");
@@ -451,6 +453,9 @@ mod tests {
         std::fs::write(&p, "frames = 10\n[room]\nheight = [2.0, 1.0]\n").unwrap();
         let e = SynthConfig::from_file(&p).unwrap_err().to_string();
         assert!(e.contains("height"), "{e}");
+        std::fs::write(&p, "fps = 0.001\n").unwrap();
+        let e = SynthConfig::from_file(&p).unwrap_err().to_string();
+        assert!(e.contains("fps"), "{e}");
         std::fs::write(&p, "seed = 9\nframes = 12\n").unwrap();
         let c = SynthConfig::from_file(&p).unwrap();
         assert_eq!((c.seed, c.frames, c.scenes), (9, 12, 1));

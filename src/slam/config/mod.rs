@@ -753,6 +753,7 @@ mod tests {
         assert!(e.contains("map.topdown_size") && e.contains("8192"), "{e}");
         for (field, value) in [
             ("fpfdcnn_smoothing", "-1.0"),
+            ("fpfdcnn_smoothing", "1e5"),
             ("fpfdcnn_input_scale", "0.0"),
         ] {
             let text = format!("[features]\n{field} = {value}\n");

@@ -46,6 +46,13 @@ pub struct FpfdcnnLossConfig {
     pub exclusion_px: f32,
     /// At most this many matches per pair enter the descriptor loss.
     pub max_matches: usize,
+    /// Near negatives per matched point (0: none, the default): descriptors sampled on a
+    /// ring of `near_radius_px` around the point's partner, which the softmax must rank
+    /// below the partner. The other matches' partners are seldom that close, and Lowe's
+    /// ratio test fails when a keypoint there matches almost as well ([`ring_points`]).
+    pub near_negatives: usize,
+    /// Radius of that ring, pixels (training resolution).
+    pub near_radius_px: f32,
 }
 
 impl Default for FpfdcnnLossConfig {
@@ -58,6 +65,8 @@ impl Default for FpfdcnnLossConfig {
             tau: 0.1,
             exclusion_px: 8.0,
             max_matches: 192,
+            near_negatives: 0,
+            near_radius_px: 12.0,
         }
     }
 }
@@ -100,8 +109,77 @@ impl FpfdcnnLossConfig {
                 self.max_matches
             ));
         }
+        if self.near_negatives > 64 {
+            return Err(format!(
+                "loss.near_negatives must be in 0..=64, got {}",
+                self.near_negatives
+            ));
+        }
+        if !(self.near_radius_px.is_finite()
+            && self.near_radius_px > 0.0
+            && self.near_radius_px <= 256.0)
+        {
+            return Err(format!(
+                "loss.near_radius_px must be in (0, 256] pixels, got {}",
+                self.near_radius_px
+            ));
+        }
         Ok(())
     }
+}
+
+/// `count` points evenly spaced on a circle of `radius` pixels around each of `points`,
+/// clamped into an image of `[height, width]`, point by point (`points.len() · count`), and
+/// the additive mask of [`descriptor_infonce`]'s near negatives: 0, or a large negative value
+/// where clamping brought a point within `exclusion_px` of its centre (it would be the
+/// positive itself).
+pub fn ring_points(
+    points: &[[f32; 2]],
+    count: usize,
+    radius: f32,
+    exclusion_px: f32,
+    [height, width]: [usize; 2],
+) -> (Vec<[f32; 2]>, Vec<f32>) {
+    let (mut ring, mut mask) = (Vec::new(), Vec::new());
+    let (xmax, ymax) = ((width.max(1) - 1) as f32, (height.max(1) - 1) as f32);
+    for p in points {
+        for k in 0..count {
+            let a = std::f32::consts::TAU * k as f32 / count as f32;
+            let q = [
+                (p[0] + radius * a.cos()).clamp(0.0, xmax),
+                (p[1] + radius * a.sin()).clamp(0.0, ymax),
+            ];
+            let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2);
+            mask.push(if d2 < exclusion_px * exclusion_px {
+                -1e4
+            } else {
+                0.0
+            });
+            ring.push(q);
+        }
+    }
+    (ring, mask)
+}
+
+/// Each matched point's own negatives for [`descriptor_infonce`]: `per_point` descriptors
+/// (`[M · per_point, D]`, normalised, point by point) around A's points (for the B -> A
+/// softmax) and around B's (for A -> B), with their additive masks (`[M, per_point]`).
+pub struct NearNegatives {
+    pub around_a: Tensor<2>,
+    pub mask_a: Tensor<2>,
+    pub around_b: Tensor<2>,
+    pub mask_b: Tensor<2>,
+    pub per_point: usize,
+}
+
+/// `[M, k]` similarities of each row of `x` (`[M, D]`) to its own `k` rows of `near`
+/// (`[M · k, D]`).
+fn own_similarities(x: Tensor<2>, near: Tensor<2>, k: usize) -> Tensor<2> {
+    let [m, d] = x.dims();
+    x.reshape([m, 1, d])
+        .mul(near.reshape([m, k, d]))
+        .sum_dim(2)
+        .reshape([m, k])
 }
 
 /// Weighted binary cross-entropy of a probability map `[N, 1, H, W]` against a
@@ -197,17 +275,20 @@ pub fn l2_normalize(x: Tensor<2>) -> Tensor<2> {
 
 /// Symmetric InfoNCE between matched descriptors `a[i] <-> b[i]` (`[M, D]`,
 /// normalised), ignoring negatives whose B points lie within `exclusion_px` of
-/// the positive's. Returns the loss and the share of points whose nearest
-/// descriptor (A to B) is their partner.
+/// the positive's; with `near`, each row of the softmax also holds its point's own near
+/// negatives. Returns the loss and the share of points whose nearest descriptor among the
+/// partners (A to B) is their own.
 pub fn descriptor_infonce(
     a: Tensor<2>,
     b: Tensor<2>,
     points_b: &[[f32; 2]],
     tau: f64,
     exclusion_px: f32,
+    near: Option<NearNegatives>,
 ) -> (Tensor<1>, f32) {
     let m = points_b.len();
     let device = a.device();
+    let (a_rows, b_rows) = (a.clone(), b.clone());
     let sim = a.matmul(b.transpose()).div_scalar(tau);
     // Additive mask: 0 where allowed, a large negative value for excluded negatives.
     let mut mask = vec![0.0f32; m * m];
@@ -226,8 +307,27 @@ pub fn descriptor_infonce(
     let mask = Tensor::<2>::from_data(TensorData::new(mask, [m, m]), &device);
     let logits = sim + mask;
     let eye = Tensor::<2>::eye(m, &device);
-    let ab = log_softmax(logits.clone(), 1).mul(eye.clone()).sum();
-    let ba = log_softmax(logits.clone(), 0).mul(eye).sum();
+    let (ab, ba) = match near {
+        None => (
+            log_softmax(logits.clone(), 1).mul(eye.clone()).sum(),
+            log_softmax(logits.clone(), 0).mul(eye).sum(),
+        ),
+        Some(n) => {
+            // Rows A -> B, then B -> A (the transpose), each with its own near negatives.
+            let k = n.per_point;
+            let near_ab =
+                own_similarities(a_rows.clone(), n.around_b, k).div_scalar(tau) + n.mask_b;
+            let near_ba = own_similarities(b_rows, n.around_a, k).div_scalar(tau) + n.mask_a;
+            let rows_ab = Tensor::cat(vec![logits.clone(), near_ab], 1);
+            let rows_ba = Tensor::cat(vec![logits.clone().transpose(), near_ba], 1);
+            let pad = Tensor::<2>::zeros([m, k], &device);
+            let pick = Tensor::cat(vec![eye, pad], 1);
+            (
+                log_softmax(rows_ab, 1).mul(pick.clone()).sum(),
+                log_softmax(rows_ba, 1).mul(pick).sum(),
+            )
+        }
+    };
     let loss = (ab + ba).div_scalar(-2.0 * m as f64);
     // Top-1 accuracy A -> B, on the host.
     let acc = match logits
@@ -329,15 +429,68 @@ mod tests {
         let norm = a.clone().powf_scalar(2.0).sum_dim(1).sqrt();
         let a = a.div(norm);
         let pts: Vec<[f32; 2]> = (0..m).map(|i| [i as f32 * 50.0, 0.0]).collect();
-        let (same, acc) = descriptor_infonce(a.clone(), a.clone(), &pts, 0.1, 8.0);
+        let (same, acc) = descriptor_infonce(a.clone(), a.clone(), &pts, 0.1, 8.0, None);
         let shuffled = Tensor::cat(
             vec![a.clone().slice(s![1..m]), a.clone().slice(s![0..1])],
             0,
         );
-        let (other, _) = descriptor_infonce(a, shuffled, &pts, 0.1, 8.0);
+        let (other, _) = descriptor_infonce(a, shuffled, &pts, 0.1, 8.0, None);
         let (same, other) = (values(same)[0], values(other)[0]);
         assert!(same < other, "{same} vs {other}");
         assert!(acc > 0.99);
+    }
+
+    #[test]
+    fn ring_points_circle_each_point_and_mask_the_ones_clamped_onto_it() {
+        let (ring, mask) = ring_points(&[[50.0, 40.0], [0.0, 0.0]], 4, 10.0, 8.0, [100, 200]);
+        assert_eq!(ring.len(), 8);
+        let near = |a: [f32; 2], b: [f32; 2]| (a[0] - b[0]).abs() + (a[1] - b[1]).abs() < 1e-4;
+        for (q, e) in ring[..4]
+            .iter()
+            .zip([[60.0, 40.0], [50.0, 50.0], [40.0, 40.0], [50.0, 30.0]])
+        {
+            assert!(near(*q, e), "{q:?} vs {e:?}");
+        }
+        assert_eq!(&mask[..4], &[0.0; 4]);
+        // At the corner two of the four are clamped onto the point itself: masked.
+        assert_eq!(mask[4..].iter().filter(|m| **m < 0.0).count(), 2);
+    }
+
+    #[test]
+    fn near_negatives_that_copy_the_partner_raise_the_loss_unless_masked() {
+        let d = device();
+        let m = 4;
+        let eye: Vec<f32> = (0..m * m)
+            .map(|i| if i % (m + 1) == 0 { 1.0 } else { 0.0 })
+            .collect();
+        let a = Tensor::<2>::from_data(TensorData::new(eye, [m, m]), &d);
+        let pts: Vec<[f32; 2]> = (0..m).map(|i| [i as f32 * 50.0, 0.0]).collect();
+        let loss = |near: Option<NearNegatives>| {
+            values(descriptor_infonce(a.clone(), a.clone(), &pts, 0.1, 8.0, near).0)[0]
+        };
+        let base = loss(None);
+        // Two near negatives per point: one orthogonal to everything, one a copy of the partner.
+        let mut copies = Vec::new();
+        for i in 0..m {
+            copies.extend((0..m).map(|_| 0.0));
+            copies.extend((0..m).map(|j| if i == j { 1.0 } else { 0.0 }));
+        }
+        let around = Tensor::<2>::from_data(TensorData::new(copies, [m * 2, m]), &d);
+        let zero = Tensor::<2>::zeros([m, 2], &d);
+        let with = |mask: Tensor<2>| NearNegatives {
+            around_a: around.clone(),
+            mask_a: mask.clone(),
+            around_b: around.clone(),
+            mask_b: mask,
+            per_point: 2,
+        };
+        let copied = loss(Some(with(zero)));
+        // A copy ties with the partner: the loss rises by about ln 2.
+        assert!(copied - base > 0.6, "{base} -> {copied}");
+        let masked = Tensor::<2>::from_data(TensorData::new([0.0f32, -1e4].repeat(m), [m, 2]), &d);
+        let kept = loss(Some(with(masked)));
+        // Masked copies leave only the orthogonal one (similarity 0): a small rise.
+        assert!(kept >= base && kept - base < 0.01, "{base} -> {kept}");
     }
 
     #[test]
@@ -357,7 +510,7 @@ mod tests {
         let pb = [[4.0f32, 2.5], [38.0, 21.0], [25.0, 9.0]];
         let a = sample_descriptors(&map, 0, &pa, [32, 48]);
         let b = sample_descriptors(&map, 1, &pb, [32, 48]);
-        let (loss, _) = descriptor_infonce(a, b, &pb, 0.1, 2.0);
+        let (loss, _) = descriptor_infonce(a, b, &pb, 0.1, 2.0, None);
         let grads = loss.backward();
         let g = map
             .grad(&grads)

@@ -7,7 +7,10 @@
 
 pub use super::config::FpfdcnnTrainConfig;
 use super::data::{FpBatch, FpDataset, FpHostBatch};
-use super::loss::{descriptor_infonce, detector_bce, detector_cell_ce, sample_descriptors};
+use super::loss::{
+    NearNegatives, descriptor_infonce, detector_bce, detector_cell_ce, ring_points,
+    sample_descriptors,
+};
 use super::model::Fpfdcnn;
 use crate::error::{Error, Result};
 use crate::training::fit::{Fit, Learner, Meter, Plot, Step, fit};
@@ -52,7 +55,27 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
         let pb: Vec<[f32; 2]> = m.iter().map(|x| x.b).collect();
         let da = sample_descriptors(&out_a.descriptors, i, &pa, size);
         let db = sample_descriptors(&out_b.descriptors, i, &pb, size);
-        let (t, a) = descriptor_infonce(da, db, &pb, l.tau, l.exclusion_px);
+        let near = (l.near_negatives > 0).then(|| {
+            let k = l.near_negatives;
+            let around = |points: &[[f32; 2]], map: &Tensor<4>| {
+                let (ring, mask) = ring_points(points, k, l.near_radius_px, l.exclusion_px, size);
+                let device = map.device();
+                (
+                    sample_descriptors(map, i, &ring, size),
+                    Tensor::<2>::from_data(TensorData::new(mask, [points.len(), k]), &device),
+                )
+            };
+            let (around_a, mask_a) = around(&pa, &out_a.descriptors);
+            let (around_b, mask_b) = around(&pb, &out_b.descriptors);
+            NearNegatives {
+                around_a,
+                mask_a,
+                around_b,
+                mask_b,
+                per_point: k,
+            }
+        });
+        let (t, a) = descriptor_infonce(da, db, &pb, l.tau, l.exclusion_px, near);
         desc_terms.push(t);
         acc += a as f64;
     }

@@ -386,7 +386,11 @@ pub fn align(
             }
             // A plane or a corridor leaves a direction unconstrained: refuse rather than drift.
             // (`try_symmetric_eigen`: `symmetric_eigenvalues` iterates without a bound, and
-            // nalgebra issue #1025 is a rank-deficient matrix on which it never returns.)
+            // nalgebra issue #1025 is a rank-deficient matrix on which it never returns; and
+            // non-finite input panics inside the eigen-solver.)
+            if !h.iter().chain(g.iter()).all(|v| v.is_finite()) {
+                return None;
+            }
             let eig = h.try_symmetric_eigen(f64::EPSILON, 1000)?.eigenvalues;
             if eig.min() < 1e-6 * eig.max().max(1e-12) {
                 return None;

@@ -22,6 +22,7 @@
 # reads the live poses of a threaded run: README, "Local bundle adjustment"). Needs `cargo build --release` first and the data of ../shared/data
 # (README, "Data formats"; scripts/get_data.sh says where to get it): 7scenes_redkitchen_0_799
 # and tum_fr1_rpy_head80, or set SEVEN_SCENES / FR1_RPY to other copies in the same layout.
+# FPFDCNN=CKPT runs other FPFDCNN weights (a checkpoint folder, as `slam --fpfdcnn`).
 set -euo pipefail
 
 usage() {
@@ -36,6 +37,8 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 slam="$root/target/release/slam"
 seven=${SEVEN_SCENES:-$root/../shared/data/7scenes_redkitchen_0_799}
 fr1=${FR1_RPY:-$root/../shared/data/tum_fr1_rpy_head80}
+weights=()
+[ -n "${FPFDCNN:-}" ] && weights=(--fpfdcnn "$FPFDCNN")
 
 # One run a record: name|sequence|first frame|frames.
 case $set_name in
@@ -82,6 +85,7 @@ run() { # name sequence first count kind (fpfdcnn, orb: RGB-D; mono: monocular)
         mode=(--labels none --features "$5")
     fi
     if ! "$slam" --sequence "$2" --first "$3" --max-frames "$4" --backend flex "${mode[@]}" \
+        ${weights[@]+"${weights[@]}"} \
         --config "$config" --out "$dir" >"$dir.log" 2>&1; then
         echo "error: run $1 with $5 failed; see $dir.log" >&2
         return 1

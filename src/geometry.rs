@@ -26,18 +26,26 @@ pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
 }
 
 /// The rotation nearest to `m` in the Frobenius norm (the chordal mean when `m` is a sum of
-/// rotations): `U diag(1, 1, det(U Vᵀ)) Vᵀ` of its SVD. `None` when `m` is not finite or the
-/// SVD does not converge. nalgebra's `Rotation3::from_matrix` iterates until an update
+/// rotations, P3P's rotation from a cross-covariance): `U diag(1, 1, det(U Vᵀ)) Vᵀ` of its
+/// SVD. `None` when `m` is not finite, the SVD does not converge, or the smallest singular
+/// value is below `min_ratio` times the largest (0: any). nalgebra's `Rotation3::from_matrix` iterates until an update
 /// falls below machine epsilon, which rounding can prevent: it never returned on one sum
 /// of 25 keyframe rotations (7-Scenes, 2026-11-29).
-pub fn nearest_rotation(m: &Matrix3<f64>) -> Option<Rotation3<f64>> {
+pub fn nearest_rotation(m: &Matrix3<f64>, min_ratio: f64) -> Option<Rotation3<f64>> {
     if !m.iter().all(|v| v.is_finite()) {
         return None;
     }
-    let svd = m.try_svd(true, true, 1e-15, 1000)?;
+    // nalgebra's `svd` iterates without a bound; 1000 sweeps are far more than a 3x3 needs.
+    let svd = m.try_svd(true, true, 5.0 * f64::EPSILON, 1000)?;
     let (u, v_t) = (svd.u?, svd.v_t?);
+    let s = svd.singular_values;
+    if s.min() < min_ratio * s.max() {
+        return None;
+    }
     let mut d = Matrix3::identity();
-    d[(2, 2)] = (u * v_t).determinant().signum();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
     Some(Rotation3::from_matrix_unchecked(u * d * v_t))
 }
 
@@ -112,7 +120,7 @@ impl Sim3 {
         // Closed form, not `from_matrix`, which may never return (see [`nearest_rotation`]);
         // a non-finite rotation stays non-finite.
         let r = UnitQuaternion::from_rotation_matrix(
-            &nearest_rotation(&self.rotation)
+            &nearest_rotation(&self.rotation, 0.0)
                 .unwrap_or_else(|| Rotation3::from_matrix_unchecked(self.rotation)),
         );
         let t = self.scale * (self.rotation * pose.translation.vector) + self.translation;
@@ -147,11 +155,11 @@ mod tests {
                     .into_inner();
             }
         }
-        let mean = nearest_rotation(&m).unwrap();
+        let mean = nearest_rotation(&m, 0.0).unwrap();
         assert!((mean.matrix() - r.to_rotation_matrix().matrix()).norm() < 1e-12);
         // A reflection's nearest rotation has determinant +1, not -1.
         let flip = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0));
-        let proper = nearest_rotation(&(flip * 2.0)).unwrap();
+        let proper = nearest_rotation(&(flip * 2.0), 0.0).unwrap();
         assert!((proper.matrix().determinant() - 1.0).abs() < 1e-12);
         // The sum of 25 keyframe rotations (column-major) on which nalgebra 0.35's
         // `Rotation3::from_matrix` never returns; `from_matrix_eps` with 10⁶ iterations
@@ -167,15 +175,19 @@ mod tests {
             0.04605766740676204,
             24.9935649850973,
         ]);
-        let mean = nearest_rotation(&stuck).unwrap();
+        let mean = nearest_rotation(&stuck, 0.0).unwrap();
         let reference =
             Rotation3::from_matrix_eps(&stuck, f64::EPSILON, 1_000_000, Rotation3::identity());
         let gap = (mean.matrix() - reference.matrix()).norm();
         assert!(gap < 1e-12, "{gap}");
         let mut bad = m;
         bad[(1, 2)] = f64::NAN;
-        assert!(nearest_rotation(&bad).is_none());
-        assert!(nearest_rotation(&Matrix3::from_element(f64::INFINITY)).is_none());
+        assert!(nearest_rotation(&bad, 0.0).is_none());
+        // A rank-deficient matrix is refused when a condition is asked for.
+        let flat = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0));
+        assert!(nearest_rotation(&flat, 0.0).is_some());
+        assert!(nearest_rotation(&flat, 1e-9).is_none());
+        assert!(nearest_rotation(&Matrix3::from_element(f64::INFINITY), 0.0).is_none());
     }
 
     #[test]

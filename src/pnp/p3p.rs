@@ -1,6 +1,7 @@
 //! Lambda Twist P3P, the minimal solver of the RANSAC loop.
 
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use crate::geometry::nearest_rotation;
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// Lambda Twist P3P: the poses `T` (up to four) with `λ_i y_i = T x_i`, `λ_i > 0`, for
 /// three bearing vectors `y_i` (any length) and three points `x_i`. Degenerate
@@ -123,7 +124,7 @@ pub fn p3p(bearings: &[Vector3<f64>; 3], points: &[Point3<f64>; 3]) -> Vec<Isome
             let v1 = y[0] * l[0] - y[1] * l[1];
             let v2 = y[0] * l[0] - y[2] * l[2];
             let yy = Matrix3::from_columns(&[v1, v2, v1.cross(&v2)]);
-            let Some(r) = nearest_rotation(&(yy * xx_inv)) else {
+            let Some(r) = nearest_rotation(&(yy * xx_inv), 1e-9) else {
                 continue;
             };
             let t = y[0] * l[0] - r * x[0].coords;
@@ -261,24 +262,6 @@ fn refine_lambdas(mut l: [f64; 3], a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
         l = next;
     }
     l
-}
-
-/// The rotation nearest to `m` (Frobenius norm), `None` when `m` is degenerate.
-fn nearest_rotation(m: &Matrix3<f64>) -> Option<Rotation3<f64>> {
-    if m.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    // nalgebra's `svd` iterates without a bound; 1000 sweeps are far more than a 3x3 needs.
-    let svd = m.try_svd(true, true, 5.0 * f64::EPSILON, 1000)?;
-    let (u, vt) = (svd.u?, svd.v_t?);
-    if svd.singular_values.min() < 1e-9 * svd.singular_values.max() {
-        return None;
-    }
-    let mut d = Matrix3::identity();
-    if (u * vt).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    Some(Rotation3::from_matrix_unchecked(u * d * vt))
 }
 
 #[cfg(test)]

@@ -176,7 +176,7 @@ fn keyframe_alignment(out: &SlamOutput) -> Option<Sim3> {
                 .into_inner()
         })
         .sum();
-    let rotation = crate::geometry::nearest_rotation(&m)?.into_inner();
+    let rotation = crate::geometry::nearest_rotation(&m, 0.0)?.into_inner();
     let translation = pairs
         .iter()
         .map(|(g, e)| g.translation.vector - scale * (rotation * e.translation.vector))

@@ -469,7 +469,7 @@ mod tests {
             values(descriptor_infonce(a.clone(), a.clone(), &pts, 0.1, 8.0, near).0)[0]
         };
         let base = loss(None);
-        // Two near negatives per point: one orthogonal to everything, one a copy of the partner.
+        // Two near negatives per point: the zero vector (similarity 0), and a copy of the partner.
         let mut copies = Vec::new();
         for i in 0..m {
             copies.extend((0..m).map(|_| 0.0));
@@ -489,7 +489,7 @@ mod tests {
         assert!(copied - base > 0.6, "{base} -> {copied}");
         let masked = Tensor::<2>::from_data(TensorData::new([0.0f32, -1e4].repeat(m), [m, 2]), &d);
         let kept = loss(Some(with(masked)));
-        // Masked copies leave only the orthogonal one (similarity 0): a small rise.
+        // Masked copies leave only the zero vector: a small rise.
         assert!(kept >= base && kept - base < 0.01, "{base} -> {kept}");
     }
 

@@ -753,6 +753,24 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn a_non_finite_start_is_refused_without_a_panic() {
+        let camera = Camera::tum_fr1().resized(160, 120);
+        let depth = render(&camera, &Pose::identity());
+        let range = (0.1, 6.0);
+        let rays = Arc::new(RayTable::new(&camera, 1));
+        let model = DepthModel::new(&depth, &camera, rays, 1, range).unwrap();
+        let cfg = DenseConfig {
+            min_pairs: 100,
+            ..DenseConfig::default()
+        };
+        let nan = Pose::from_parts(
+            Translation3::new(f64::NAN, 0.0, 0.0),
+            UnitQuaternion::identity(),
+        );
+        assert!(align(&model, &depth, None, &nan, range, &cfg).is_none());
+    }
+
+    #[test]
     fn noise_weights_follow_the_kinect_model() {
         assert!((noise_weight(1.0) - 1.0).abs() < 1e-12);
         assert!(

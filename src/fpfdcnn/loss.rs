@@ -132,7 +132,7 @@ impl FpfdcnnLossConfig {
 /// clamped into an image of `[height, width]`, point by point (`points.len() · count`), and
 /// the additive mask of [`descriptor_infonce`]'s near negatives: 0, or a large negative value
 /// where clamping brought a point within `exclusion_px` of its centre (it would be the
-/// positive itself).
+/// positive itself); a ring at the exclusion radius itself is kept whole.
 pub fn ring_points(
     points: &[[f32; 2]],
     count: usize,
@@ -145,12 +145,12 @@ pub fn ring_points(
     for p in points {
         for k in 0..count {
             let a = std::f32::consts::TAU * k as f32 / count as f32;
-            let q = [
-                (p[0] + radius * a.cos()).clamp(0.0, xmax),
-                (p[1] + radius * a.sin()).clamp(0.0, ymax),
-            ];
+            let free = [p[0] + radius * a.cos(), p[1] + radius * a.sin()];
+            let q = [free[0].clamp(0.0, xmax), free[1].clamp(0.0, ymax)];
+            // Only a clamped point can come closer than the radius (a ring at exactly the
+            // exclusion radius must not be masked by rounding).
             let d2 = (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2);
-            mask.push(if d2 < exclusion_px * exclusion_px {
+            mask.push(if q != free && d2 < exclusion_px * exclusion_px {
                 -1e4
             } else {
                 0.0
@@ -454,6 +454,9 @@ mod tests {
         assert_eq!(&mask[..4], &[0.0; 4]);
         // At the corner two of the four are clamped onto the point itself: masked.
         assert_eq!(mask[4..].iter().filter(|m| **m < 0.0).count(), 2);
+        // A ring of 8 at exactly the exclusion radius, diagonals included, stays whole.
+        let (_, mask) = ring_points(&[[50.0, 40.0]], 8, 8.0, 8.0, [100, 200]);
+        assert_eq!(mask, vec![0.0; 8]);
     }
 
     #[test]

@@ -28,9 +28,10 @@ pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
 /// The rotation nearest to `m` in the Frobenius norm (the chordal mean when `m` is a sum of
 /// rotations, P3P's rotation from a cross-covariance): `U diag(1, 1, det(U Vᵀ)) Vᵀ` of its
 /// SVD. `None` when `m` is not finite, the SVD does not converge, or the smallest singular
-/// value is below `min_ratio` times the largest (0: any). nalgebra's `Rotation3::from_matrix` iterates until an update
-/// falls below machine epsilon, which rounding can prevent: it never returned on one sum
-/// of 25 keyframe rotations (7-Scenes, 2026-11-29).
+/// value is below `min_ratio` times the largest (0: any). Not nalgebra's
+/// `Rotation3::from_matrix`, which iterates until an update falls below machine epsilon,
+/// which rounding can prevent: it never returned on one sum of 25 keyframe rotations
+/// (7-Scenes, 2026-11-29).
 pub fn nearest_rotation(m: &Matrix3<f64>, min_ratio: f64) -> Option<Rotation3<f64>> {
     if !m.iter().all(|v| v.is_finite()) {
         return None;
@@ -117,12 +118,12 @@ impl Sim3 {
     /// Applies the transform to a camera pose as evo does: positions are scaled
     /// first, then the rigid part is left-multiplied.
     pub fn transform_pose(&self, pose: &Pose) -> Pose {
-        // Closed form, not `from_matrix`, which may never return (see [`nearest_rotation`]);
-        // a non-finite rotation stays non-finite.
-        let r = UnitQuaternion::from_rotation_matrix(
-            &nearest_rotation(&self.rotation, 0.0)
-                .unwrap_or_else(|| Rotation3::from_matrix_unchecked(self.rotation)),
-        );
+        // Closed form and renormalised, not `from_matrix`, which may never return (see
+        // [`nearest_rotation`]): a Sim(3)'s rotation (Umeyama, a chordal mean) is already
+        // orthonormal, so no projection per pose. A non-finite one stays non-finite.
+        let q =
+            UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(self.rotation));
+        let r = UnitQuaternion::new_normalize(q.into_inner());
         let t = self.scale * (self.rotation * pose.translation.vector) + self.translation;
         Isometry3::from_parts(Translation3::from(t), r * pose.rotation)
     }

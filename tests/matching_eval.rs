@@ -74,6 +74,36 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
     assert!(table.contains("repeatability (3 px) | matching score"));
 }
 
+/// `roll_deg` turns image B about its centre before matching and maps the matches back:
+/// ORB, which measures each keypoint's orientation, keeps most of its correct matches at 30
+/// degrees, so the scoring follows the roll (scored in the rolled pixels, almost none would
+/// be correct).
+#[test]
+fn a_rolled_second_image_is_scored_in_its_recorded_pixels() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let seq = TumSequence::open(root.join("datasets/fixtures/tum_fr1_rpy_head10")).unwrap();
+    let cam = Camera::load("fr1").unwrap();
+    let run = |roll_deg: f64| {
+        let cfg = MatchingEvalConfig {
+            gap: 3,
+            pairs: 3,
+            roll_deg,
+            ..Default::default()
+        };
+        evaluate(&seq, &cam, None, &cfg, |_, _| {}).unwrap().0
+    };
+    let (upright, rolled) = (run(0.0), run(30.0));
+    let (u, r) = (&upright.orb_bf.clean, &rolled.orb_bf.clean);
+    eprintln!(
+        "ORB + BF upright {:.3} ({}), rolled 30 degrees {:.3} ({})",
+        u.accuracy, u.correct, r.accuracy, r.correct
+    );
+    assert!(r.accuracy > 0.5 && r.correct * 2 > u.correct, "{r:?}");
+    assert_eq!(rolled.roll_deg, 30.0);
+    assert!(markdown(&rolled).contains("image B rolled by 30 degrees"));
+    assert!(!markdown(&upright).contains("rolled"));
+}
+
 /// The CLI evaluates the bundled FPFDCNN by default (when the crate has it), `--orb-only`
 /// skips it, and a bad ratio, warp count, Harris window or pyramid is an error before any
 /// pair is read.
@@ -129,6 +159,7 @@ fn cli_defaults_and_bad_options() {
         (["--harris-sigma", "0"], "--harris-sigma: harris sigma"),
         (["--orb-levels", "0"], "pyramid levels"),
         (["--gap", "0"], "gap (0) and pairs (1) must be at least 1"),
+        (["--roll", "200"], "--roll must be in [-180, 180] degrees"),
     ] {
         let o = run(&[&["--orb-only"][..], &bad[..]].concat());
         assert!(!o.status.success());

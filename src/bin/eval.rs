@@ -81,6 +81,11 @@ struct MatchingArgs {
     /// Degradation of both images for the blurred half, e.g. motion:9 (a 9-pixel horizontal motion blur).
     #[arg(long)]
     blur: Option<String>,
+    /// Rotate the second image of each pair by this many degrees about its centre (-180 to
+    /// 180): a roll about the optical axis on top of the pair's motion; matches are scored
+    /// in the recorded image's pixels.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    roll: f64,
     /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); default: the
     /// bundled weights/fpfdcnn.
     #[arg(long)]
@@ -252,6 +257,11 @@ fn matching(a: MatchingArgs) -> Result<()> {
         "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
         a.ratio_exclusion
     );
+    anyhow::ensure!(
+        (-180.0..=180.0).contains(&a.roll),
+        "--roll must be in [-180, 180] degrees, got {}",
+        a.roll
+    );
     let adaptation =
         (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
             warps: a.adapted_harris,
@@ -302,9 +312,11 @@ fn matching(a: MatchingArgs) -> Result<()> {
             .as_deref()
             .map(sdf_slam::dataset::photometric::Degradation::parse)
             .transpose()?,
+        roll_deg: a.roll,
         adaptation,
         ..Default::default()
     };
+
     cfg.orb.n_features = a.keypoints;
     cfg.orb.n_levels = a.orb_levels;
     cfg.orb.validate()?;

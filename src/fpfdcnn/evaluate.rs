@@ -9,6 +9,7 @@
 //! whose A keypoint has no depth are not counted.
 
 use super::adaptation::adapted_corners;
+use super::homography::Homography;
 use super::inference::{Features, FpfdcnnDetector};
 use crate::camera::Camera;
 use crate::dataset::fp_pairs::FpConfig;
@@ -44,6 +45,10 @@ pub struct MatchingEvalConfig {
     pub last: Option<usize>,
     /// Degradation of both images for the "blurred" half (e.g. `motion:9`).
     pub blur: Option<Degradation>,
+    /// Image B rotated by this many degrees about its centre before either method sees it
+    /// (a roll about the optical axis on top of the pair's own motion); matches are mapped
+    /// back to B's pixels before they are scored. 0: the images as recorded.
+    pub roll_deg: f64,
     pub orb: OrbConfig,
     pub range: RangeMatcherConfig,
     /// Centre the range matcher's windows by a global motion estimate
@@ -67,6 +72,7 @@ impl Default for MatchingEvalConfig {
             first: 0,
             last: None,
             blur: None,
+            roll_deg: 0.0,
             orb: OrbConfig::default(),
             range: RangeMatcherConfig::default(),
             guide: None,
@@ -123,6 +129,9 @@ pub struct MatchingReport {
     pub pairs: Vec<(usize, usize)>,
     pub gap: usize,
     pub blur: Option<String>,
+    /// Degrees image B was rolled by ([`MatchingEvalConfig::roll_deg`]).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub roll_deg: f64,
     /// The range matcher's settings, in words.
     #[serde(default)]
     pub range_matcher: String,
@@ -244,6 +253,30 @@ pub fn fpfdcnn_matches(
             )
         })
         .collect())
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// Pixels of a rolled image B (`roll`: B's pixels to the rolled image's) back in B.
+fn unroll_points(roll: Option<&Homography>, points: Vec<Point2<f64>>) -> Vec<Point2<f64>> {
+    let Some(r) = roll else { return points };
+    points
+        .into_iter()
+        .map(|p| {
+            let q = r
+                .map_back([p.x as f32, p.y as f32])
+                .unwrap_or([f32::NAN; 2]);
+            Point2::new(f64::from(q[0]), f64::from(q[1]))
+        })
+        .collect()
+}
+
+/// Matches into a rolled image B with their B side back in B's pixels.
+fn unroll(roll: Option<&Homography>, matches: &PixelMatches) -> PixelMatches {
+    let (a, b): (Vec<_>, Vec<_>) = matches.iter().copied().unzip();
+    a.into_iter().zip(unroll_points(roll, b)).collect()
 }
 
 /// A frame pair with its ground truth, for scoring matches.
@@ -396,8 +429,20 @@ pub fn evaluate(
                 ),
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
+            // The unrotated B for the targets' repeatability; the methods see `gb` rolled.
+            let b_recorded = gb.clone();
+            let roll = (cfg.roll_deg != 0.0).then(|| {
+                Homography::rotation(cfg.roll_deg, gb.width() as usize, gb.height() as usize)
+            });
+            let gb = match &roll {
+                Some(r) => {
+                    let (w, h) = (gb.width() as usize, gb.height() as usize);
+                    gray_from_f32(&r.warp(&GrayF32::from_gray(&gb), [0, 0], w, h))
+                }
+                None => gb,
+            };
             if b.depth.is_some() {
-                let (fa, fb) = (GrayF32::from_gray(&ga), GrayF32::from_gray(&gb));
+                let (fa, fb) = (GrayF32::from_gray(&ga), GrayF32::from_gray(&b_recorded));
                 let (ca, cb) = (
                     harris_corners(&fa, &harris_cfg),
                     harris_corners(&fb, &harris_cfg),
@@ -413,8 +458,13 @@ pub fn evaluate(
                     adapted[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
                 }
             }
-            let (m, kp) = orb_matches(&ga, &gb, &cfg.orb)?;
-            let errs = score(&mut orb[c], &m, &kp, &pgt)?;
+            let (m, [ka, kb]) = orb_matches(&ga, &gb, &cfg.orb)?;
+            let errs = score(
+                &mut orb[c],
+                &unroll(roll.as_ref(), &m),
+                &[ka, unroll_points(roll.as_ref(), kb)],
+                &pgt,
+            )?;
             let blurred = if c == 0 { "" } else { ", blurred" };
             if picture_pair {
                 rows.push((
@@ -428,7 +478,12 @@ pub fn evaluate(
             if let Some(det) = detector {
                 let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
                 let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
-                let errs = score(&mut net[c], &m, &[pixels(&fa), pixels(&fb)], &pgt)?;
+                let errs = score(
+                    &mut net[c],
+                    &unroll(roll.as_ref(), &m),
+                    &[pixels(&fa), unroll_points(roll.as_ref(), pixels(&fb))],
+                    &pgt,
+                )?;
                 if picture_pair {
                     rows.push((ga, gb, m, errs, format!("FPFDCNN + range{blurred}")));
                 }
@@ -452,6 +507,7 @@ pub fn evaluate(
             pairs: used,
             gap: cfg.gap,
             blur: cfg.blur.map(|d| format!("{d:?}")),
+            roll_deg: cfg.roll_deg,
             range_matcher: describe_matcher(cfg),
             fpfdcnn_detector: detector
                 .map(|d| describe_detector(&d.config))
@@ -585,7 +641,7 @@ pub fn markdown(r: &MatchingReport) -> String {
         format!("; FPFDCNN keypoints: {}", r.fpfdcnn_detector)
     };
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px | repeatability (3 px) | matching score |\n|---|---|---|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px | repeatability (3 px) | matching score |\n|---|---|---|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,
@@ -593,6 +649,11 @@ pub fn markdown(r: &MatchingReport) -> String {
             .as_ref()
             .map(|b| format!(", blur {b} on both images"))
             .unwrap_or_default(),
+        if r.roll_deg != 0.0 {
+            format!(", image B rolled by {} degrees", r.roll_deg)
+        } else {
+            String::new()
+        },
         r.range_matcher
     );
     let mut methods = vec![("ORB + BF matcher", &r.orb_bf)];

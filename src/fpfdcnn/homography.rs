@@ -109,13 +109,38 @@ impl Homography {
             uniform(rng, cfg.max_perspective / w),
         );
         let (c, sn) = (s * theta.cos(), s * theta.sin());
-        let about_centre = Matrix3::new(c, -sn, tx, sn, c, ty, px, py, 1.0);
-        let (cx, cy) = ((w - 1.0) / 2.0, (h - 1.0) / 2.0);
+        Self::about_centre(
+            Matrix3::new(c, -sn, tx, sn, c, ty, px, py, 1.0),
+            width,
+            height,
+        )
+    }
+
+    /// A rotation by `degrees` about the centre of a `width x height` window (clockwise on
+    /// screen for positive angles, image y pointing down): for a camera whose principal
+    /// point is near the centre, a roll about its optical axis.
+    pub fn rotation(degrees: f64, width: usize, height: usize) -> Self {
+        let (sn, c) = degrees.to_radians().sin_cos();
+        Self::about_centre(
+            Matrix3::new(c, -sn, 0.0, sn, c, 0.0, 0.0, 0.0, 1.0),
+            width,
+            height,
+        )
+    }
+
+    /// `m`, which acts on coordinates relative to the window's centre, on window pixels.
+    fn about_centre(m: Matrix3<f64>, width: usize, height: usize) -> Self {
+        let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
         let to = Matrix3::new(1.0, 0.0, cx, 0.0, 1.0, cy, 0.0, 0.0, 1.0);
         let from = Matrix3::new(1.0, 0.0, -cx, 0.0, 1.0, -cy, 0.0, 0.0, 1.0);
-        let hm = to * about_centre * from;
+        let hm = to * m * from;
         let inv = hm.try_inverse().unwrap_or_else(Matrix3::identity);
         Homography { h: hm, inv }
+    }
+
+    /// A B-window pixel in the A window.
+    pub fn map_back(&self, p: [f32; 2]) -> Option<[f32; 2]> {
+        Self::apply(&self.inv, p)
     }
 
     /// `p` mapped by `m`; `None` when it goes to infinity.
@@ -190,6 +215,16 @@ mod tests {
             let back = Homography::apply(&hm.inv, q).expect("finite");
             assert!((back[0] - 20.0).abs() < 1e-3 && (back[1] - 20.0).abs() < 1e-3);
         }
+        // A roll by 90 degrees about the centre of a 64 x 48 window (centre 31.5, 23.5):
+        // a pixel right of the centre lands below it, and map_back undoes map.
+        let roll = Homography::rotation(90.0, w, h);
+        let q = roll.map([41.5, 23.5]).expect("finite");
+        assert!(
+            (q[0] - 31.5).abs() < 1e-4 && (q[1] - 33.5).abs() < 1e-4,
+            "{q:?}"
+        );
+        let back = roll.map_back(q).expect("finite");
+        assert!((back[0] - 41.5).abs() < 1e-4 && (back[1] - 23.5).abs() < 1e-4);
         let mut bad = cfg.clone();
         bad.scale = [2.0, 1.0];
         assert!(bad.validate().is_err());

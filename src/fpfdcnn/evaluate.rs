@@ -429,20 +429,16 @@ pub fn evaluate(
                 ),
                 _ => (gray_from_f32(&clean.0), gray_from_f32(&clean.1)),
             };
-            // The unrotated B for the targets' repeatability; the methods see `gb` rolled.
-            let b_recorded = gb.clone();
-            let roll = (cfg.roll_deg != 0.0).then(|| {
-                Homography::rotation(cfg.roll_deg, gb.width() as usize, gb.height() as usize)
-            });
-            let gb = match &roll {
-                Some(r) => {
-                    let (w, h) = (gb.width() as usize, gb.height() as usize);
-                    gray_from_f32(&r.warp(&GrayF32::from_gray(&gb), [0, 0], w, h))
-                }
-                None => gb,
-            };
+            // The methods see B rolled (when asked); the targets' repeatability is B's as
+            // recorded.
+            let (w, h) = (gb.width() as usize, gb.height() as usize);
+            let roll = (cfg.roll_deg != 0.0).then(|| Homography::rotation(cfg.roll_deg, w, h));
+            let rolled = roll
+                .as_ref()
+                .map(|r| gray_from_f32(&r.warp(&GrayF32::from_gray(&gb), [0, 0], w, h)));
+            let seen_b = rolled.as_ref().unwrap_or(&gb);
             if b.depth.is_some() {
-                let (fa, fb) = (GrayF32::from_gray(&ga), GrayF32::from_gray(&b_recorded));
+                let (fa, fb) = (GrayF32::from_gray(&ga), GrayF32::from_gray(&gb));
                 let (ca, cb) = (
                     harris_corners(&fa, &harris_cfg),
                     harris_corners(&fb, &harris_cfg),
@@ -458,7 +454,7 @@ pub fn evaluate(
                     adapted[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
                 }
             }
-            let (m, [ka, kb]) = orb_matches(&ga, &gb, &cfg.orb)?;
+            let (m, [ka, kb]) = orb_matches(&ga, seen_b, &cfg.orb)?;
             let errs = score(
                 &mut orb[c],
                 &unroll(roll.as_ref(), &m),
@@ -469,14 +465,14 @@ pub fn evaluate(
             if picture_pair {
                 rows.push((
                     ga.clone(),
-                    gb.clone(),
+                    seen_b.clone(),
                     m,
                     errs,
                     format!("ORB + BF{blurred}"),
                 ));
             }
             if let Some(det) = detector {
-                let (fa, fb) = (det.detect(&ga)?, det.detect(&gb)?);
+                let (fa, fb) = (det.detect(&ga)?, det.detect(seen_b)?);
                 let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
                 let errs = score(
                     &mut net[c],
@@ -485,7 +481,13 @@ pub fn evaluate(
                     &pgt,
                 )?;
                 if picture_pair {
-                    rows.push((ga, gb, m, errs, format!("FPFDCNN + range{blurred}")));
+                    rows.push((
+                        ga,
+                        seen_b.clone(),
+                        m,
+                        errs,
+                        format!("FPFDCNN + range{blurred}"),
+                    ));
                 }
             }
         }

@@ -316,7 +316,6 @@ fn matching(a: MatchingArgs) -> Result<()> {
         adaptation,
         ..Default::default()
     };
-
     cfg.orb.n_features = a.keypoints;
     cfg.orb.n_levels = a.orb_levels;
     cfg.orb.validate()?;

@@ -102,6 +102,13 @@ fn a_rolled_second_image_is_scored_in_its_recorded_pixels() {
     assert_eq!(rolled.roll_deg, 30.0);
     assert!(markdown(&rolled).contains("image B rolled by 30 degrees"));
     assert!(!markdown(&upright).contains("rolled"));
+    // An angle that is not one is an error, not a black image.
+    let cfg = MatchingEvalConfig {
+        roll_deg: f64::NAN,
+        ..Default::default()
+    };
+    let err = evaluate(&seq, &cam, None, &cfg, |_, _| {}).unwrap_err();
+    assert!(err.to_string().contains("roll_deg must be in"), "{err}");
 }
 
 /// The CLI evaluates the bundled FPFDCNN by default (when the crate has it), `--orb-only`

@@ -386,6 +386,12 @@ impl FpDataset {
         }
         let crop = cfg.sampling == Sampling::Crop;
         cfg.homography.validate().map_err(Error::msg)?;
+        if !(0.0..=180.0).contains(&cfg.posed_roll_deg) {
+            return Err(Error::msg(format!(
+                "posed_roll_deg must be in [0, 180] degrees, got {}",
+                cfg.posed_roll_deg
+            )));
+        }
         let mut train = FpDataset {
             height,
             width,
@@ -703,7 +709,19 @@ mod tests {
                     usize::from(((m.b[0] - m.a[0]).powi(2) + (m.b[1] - m.a[1]).powi(2)) > 1.0);
             }
             seen += m.len();
-            assert!(tb.iter().all(|&(x, y)| x < 48 && y < 32));
+            // Every target of the rolled B shows the content of one of the frame's targets
+            // (to within the half pixel of its rounding).
+            let frame_b = &data.frames[1];
+            for &(x, y) in &tb {
+                assert!(x < 48 && y < 32);
+                let here = b.sample(x as f64, y as f64);
+                let nearest = frame_b
+                    .targets
+                    .iter()
+                    .map(|&(tx, ty)| (frame_b.gray.sample(tx as f64, ty as f64) - here).abs())
+                    .fold(f32::INFINITY, f32::min);
+                assert!(nearest < 0.04, "target ({x}, {y}): {nearest}");
+            }
         }
         assert!(seen > 20 * 4, "{seen}");
         assert!(

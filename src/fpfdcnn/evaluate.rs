@@ -372,6 +372,12 @@ pub fn evaluate(
     cfg: &MatchingEvalConfig,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<(MatchingReport, Option<RgbImage>)> {
+    if !(-180.0..=180.0).contains(&cfg.roll_deg) {
+        return Err(Error::msg(format!(
+            "roll_deg must be in [-180, 180] degrees, got {}",
+            cfg.roll_deg
+        )));
+    }
     // Gap 0 would match each frame with itself (100 %, meaning nothing).
     if cfg.gap == 0 || cfg.pairs == 0 {
         return Err(Error::msg(format!(

@@ -99,7 +99,7 @@ pub struct FpDataConfig {
     /// angle within ± this many degrees (its targets and matches with it; 0: as recorded).
     /// Posed pairs otherwise turn about the optical axis only as much as their camera did,
     /// and descriptors trained on them lose most matches at a roll of 15 degrees (README, *Roll:
-    /// stage 15*).
+    /// stages 15 and 18*).
     pub posed_roll_deg: f64,
 }
 
@@ -127,6 +127,18 @@ pub enum Sampling {
     /// resized image; match positions scaled). A network trained this way sees
     /// keypoints at another scale than a full-resolution frame shows them.
     Resize,
+}
+
+/// The bound on [`FpDataConfig::posed_roll_deg`], checked by the config and by
+/// [`FpDataset::build`] (which may be called without the config's check).
+fn check_posed_roll(deg: f64) -> std::result::Result<(), String> {
+    if (0.0..=180.0).contains(&deg) {
+        Ok(())
+    } else {
+        Err(format!(
+            "posed_roll_deg must be in [0, 180] degrees, got {deg}"
+        ))
+    }
 }
 
 impl FpDataConfig {
@@ -166,12 +178,7 @@ impl FpDataConfig {
         self.homography
             .validate()
             .map_err(|m| format!("data.{m}"))?;
-        if !(0.0..=180.0).contains(&self.posed_roll_deg) {
-            return Err(format!(
-                "data.posed_roll_deg must be in [0, 180] degrees, got {}",
-                self.posed_roll_deg
-            ));
-        }
+        check_posed_roll(self.posed_roll_deg).map_err(|m| format!("data.{m}"))?;
         for s in &self.sequences {
             if s.repeat == 0 || s.repeat > 1000 || s.homographies > 1000 {
                 return Err(format!(
@@ -386,12 +393,7 @@ impl FpDataset {
         }
         let crop = cfg.sampling == Sampling::Crop;
         cfg.homography.validate().map_err(Error::msg)?;
-        if !(0.0..=180.0).contains(&cfg.posed_roll_deg) {
-            return Err(Error::msg(format!(
-                "posed_roll_deg must be in [0, 180] degrees, got {}",
-                cfg.posed_roll_deg
-            )));
-        }
+        check_posed_roll(cfg.posed_roll_deg).map_err(Error::msg)?;
         let mut train = FpDataset {
             height,
             width,
@@ -738,6 +740,21 @@ mod tests {
                 ..parsed.clone()
             };
             assert!(cfg.validate().unwrap_err().contains("data.posed_roll_deg"));
+            // `build`, which may be called without the config's check, refuses it before
+            // reading any sequence.
+            let cfg = FpDataConfig {
+                sequences: vec![SequenceSource {
+                    path: "no/such/sequence".into(),
+                    camera: "fr1".into(),
+                    repeat: 1,
+                    homographies: 0,
+                    frames: None,
+                    val_fraction: None,
+                }],
+                ..cfg
+            };
+            let err = FpDataset::build(&cfg, [96, 128], |_| {}).err().unwrap();
+            assert!(err.to_string().contains("posed_roll_deg"), "{err}");
         }
     }
 

@@ -86,6 +86,11 @@ struct MatchingArgs {
     /// in the recorded image's pixels.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     roll: f64,
+    /// Roll-compensated FPFDCNN matching: when the global motion estimate rotates by at
+    /// least this many degrees, the second image is turned back by it and described again
+    /// (one more network pass), and those matches are kept if there are as many (0: off).
+    #[arg(long, default_value_t = 0.0)]
+    derotate: f64,
     /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); default: the
     /// bundled weights/fpfdcnn.
     #[arg(long)]
@@ -262,6 +267,15 @@ fn matching(a: MatchingArgs) -> Result<()> {
         "--roll must be in [-180, 180] degrees, got {}",
         a.roll
     );
+    anyhow::ensure!(
+        (0.0..=180.0).contains(&a.derotate),
+        "--derotate must be in [0, 180] degrees (0: off), got {}",
+        a.derotate
+    );
+    anyhow::ensure!(
+        a.derotate == 0.0 || !a.window_at_keypoint,
+        "--derotate needs the global motion estimate: leave out --window-at-keypoint"
+    );
     let adaptation =
         (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
             warps: a.adapted_harris,
@@ -313,6 +327,9 @@ fn matching(a: MatchingArgs) -> Result<()> {
             .map(sdf_slam::dataset::photometric::Degradation::parse)
             .transpose()?,
         roll_deg: a.roll,
+        derotation: sdf_slam::fpfdcnn::derotation::DerotationConfig {
+            min_deg: a.derotate,
+        },
         adaptation,
         ..Default::default()
     };

@@ -9,6 +9,7 @@
 //! whose A keypoint has no depth are not counted.
 
 use super::adaptation::adapted_corners;
+use super::derotation::{DerotationConfig, match_with_derotation};
 use super::homography::Homography;
 use super::inference::{Features, FpfdcnnDetector};
 use crate::camera::Camera;
@@ -25,7 +26,9 @@ use crate::metrics::matching::{
 };
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
-use crate::range_matcher::{GuideConfig, RangeMatcherConfig, guided_range_match, range_match};
+use crate::range_matcher::{
+    GuideConfig, RangeMatch, RangeMatcherConfig, guided_range_match, range_match,
+};
 use crate::raster::GrayF32;
 use crate::raster::gray_from_f32;
 use image::{GrayImage, Rgb, RgbImage};
@@ -54,6 +57,9 @@ pub struct MatchingEvalConfig {
     /// Centre the range matcher's windows by a global motion estimate
     /// ([`crate::range_matcher::guided_range_match`]); `None`: at the keypoint (the paper).
     pub guide: Option<GuideConfig>,
+    /// Roll-compensated FPFDCNN matching ([`super::derotation`]; needs `guide`): image B
+    /// turned back by the estimated roll when it reaches `min_deg`.
+    pub derotation: DerotationConfig,
     pub pnp: PnpConfig,
     /// Also measure the repeatability of Harris corners after homographic adaptation
     /// ([`super::adaptation`]: a pixel is averaged over the views it lies in, and a view's
@@ -76,6 +82,7 @@ impl Default for MatchingEvalConfig {
             orb: OrbConfig::default(),
             range: RangeMatcherConfig::default(),
             guide: None,
+            derotation: DerotationConfig { min_deg: 0.0 },
             pnp: PnpConfig::default(),
             adaptation: None,
             harris: FpConfig::default().harris,
@@ -112,6 +119,10 @@ pub struct ConditionResult {
     /// score: detector, descriptor and matcher together).
     #[serde(default)]
     pub matching_score: f64,
+    /// Pairs whose second image was turned back by its estimated roll
+    /// ([`MatchingEvalConfig::derotation`]).
+    #[serde(default, skip_serializing_if = "is_zero_count")]
+    pub derotated_pairs: usize,
 }
 
 /// One method's results.
@@ -162,6 +173,7 @@ struct Acc {
     images: usize,
     errors: Vec<f64>,
     repeat: Vec<Repeatability>,
+    derotated: usize,
 }
 
 impl Acc {
@@ -182,6 +194,7 @@ impl Acc {
             mean_rot_error_deg: mean(&self.rot),
             mean_trans_error_m: mean(&self.trans),
             pnp_failures: self.failures,
+            derotated_pairs: self.derotated,
             keypoints: self.keypoints as f64 / self.images.max(1) as f64,
             within_px: [2.0, 5.0, 10.0, 20.0]
                 .iter()
@@ -244,7 +257,13 @@ pub fn fpfdcnn_matches(
         Some(g) => guided_range_match(p1, d1, p2, d2, fa.dim, cfg, g)?.0,
         None => range_match(p1, d1, p2, d2, fa.dim, cfg)?,
     };
-    Ok(m.iter()
+    Ok(pixel_matches(fa, fb, &m))
+}
+
+/// Range matches between `fa` and `fb` as pixel pairs.
+fn pixel_matches(fa: &Features, fb: &Features, matches: &[RangeMatch]) -> PixelMatches {
+    matches
+        .iter()
         .map(|m| {
             let (pa, pb) = (fa.points[m.i], fb.points[m.j]);
             (
@@ -252,11 +271,34 @@ pub fn fpfdcnn_matches(
                 Point2::new(pb[0] as f64, pb[1] as f64),
             )
         })
-        .collect())
+        .collect()
 }
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
+}
+
+fn is_zero_count(v: &usize) -> bool {
+    *v == 0
+}
+
+/// FPFDCNN's matches on one pair, roll-compensated when `cfg` asks for it, with B's
+/// keypoints and whether B was turned back.
+fn fpfdcnn_pair(
+    det: &FpfdcnnDetector,
+    a: &GrayImage,
+    b: &GrayImage,
+    cfg: &MatchingEvalConfig,
+) -> Result<(PixelMatches, [Features; 2], bool)> {
+    let (fa, fb) = (det.detect(a)?, det.detect(b)?);
+    let guide = cfg.guide.as_ref().filter(|_| cfg.derotation.min_deg > 0.0);
+    let Some(guide) = guide else {
+        let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
+        return Ok((m, [fa, fb], false));
+    };
+    let r = match_with_derotation(det, &fa, b, fb, &cfg.range, guide, &cfg.derotation)?;
+    let m = pixel_matches(&fa, &r.features_b, &r.matches);
+    Ok((m, [fa, r.features_b], r.derotated_deg.is_some()))
 }
 
 /// Pixels of a rolled image B (`roll`: B's pixels to the rolled image's) back in B.
@@ -378,6 +420,7 @@ pub fn evaluate(
             cfg.roll_deg
         )));
     }
+    cfg.derotation.validate()?;
     // Gap 0 would match each frame with itself (100 %, meaning nothing).
     if cfg.gap == 0 || cfg.pairs == 0 {
         return Err(Error::msg(format!(
@@ -478,8 +521,8 @@ pub fn evaluate(
                 ));
             }
             if let Some(det) = detector {
-                let (fa, fb) = (det.detect(&ga)?, det.detect(seen_b)?);
-                let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
+                let (m, [fa, fb], turned) = fpfdcnn_pair(det, &ga, seen_b, cfg)?;
+                net[c].derotated += usize::from(turned);
                 let errs = score(
                     &mut net[c],
                     &unroll(roll.as_ref(), &m),
@@ -607,6 +650,12 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
             ));
         }
     }
+    if cfg.guide.is_some() && cfg.derotation.min_deg > 0.0 {
+        s.push_str(&format!(
+            "; FPFDCNN's image B turned back by a global roll of {} degrees or more",
+            cfg.derotation.min_deg
+        ));
+    }
     s
 }
 
@@ -690,6 +739,24 @@ pub fn markdown(r: &MatchingReport) -> String {
     for (name, m) in &methods {
         if let Some(b) = &m.blurred {
             row(&mut s, "Blurred", name, b);
+        }
+    }
+    if let Some(f) = &r.fpfdcnn_range {
+        let turned: Vec<String> = std::iter::once(&f.clean)
+            .chain(f.blurred.as_ref())
+            .map(|c| c.derotated_pairs.to_string())
+            .collect();
+        if turned.iter().any(|t| t != "0") {
+            s.push_str(&format!(
+                "\nFPFDCNN's image B turned back by its estimated roll on {} of {} pairs ({}).\n",
+                turned.join(" / "),
+                r.pairs.len(),
+                if turned.len() > 1 {
+                    "clear / blurred"
+                } else {
+                    "clear"
+                }
+            ));
         }
     }
     for (rates, what) in [

@@ -3,6 +3,7 @@
 pub mod adaptation;
 mod config;
 pub mod data;
+pub mod derotation;
 pub mod evaluate;
 pub mod homography;
 pub mod inference;

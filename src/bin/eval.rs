@@ -88,8 +88,9 @@ struct MatchingArgs {
     roll: f64,
     /// Roll-compensated FPFDCNN matching: when the global motion estimate rotates by at
     /// least this many degrees, the second image is turned back by it and described again
-    /// (one more network pass), and those matches are kept if there are as many (0: off).
-    #[arg(long, default_value_t = 0.0)]
+    /// (one more network pass), and those matches are kept if there are as many (0: off,
+    /// FPFDCNN + range matcher as the paper has it).
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::derotation::DEFAULT_DEROTATE_DEG)]
     derotate: f64,
     /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); default: the
     /// bundled weights/fpfdcnn.

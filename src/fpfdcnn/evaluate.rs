@@ -82,7 +82,9 @@ impl Default for MatchingEvalConfig {
             orb: OrbConfig::default(),
             range: RangeMatcherConfig::default(),
             guide: None,
-            derotation: DerotationConfig { min_deg: 0.0 },
+            derotation: DerotationConfig {
+                min_deg: super::derotation::DEFAULT_DEROTATE_DEG,
+            },
             pnp: PnpConfig::default(),
             adaptation: None,
             harris: FpConfig::default().harris,

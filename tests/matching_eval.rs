@@ -219,6 +219,10 @@ fn cli_defaults_and_bad_options() {
             "{matcher}"
         );
     }
+    // Windows at the keypoint (the paper's matcher) have no motion estimate to turn B back
+    // by: roll compensation is then off unless asked for.
+    let o = run(&["--orb-only", "--window-at-keypoint"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let o = run(&["--orb-only", "--ratio-exclusion=-1"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--ratio-exclusion must be in"));
@@ -242,6 +246,10 @@ fn cli_defaults_and_bad_options() {
         (
             ["--derotate", "200"],
             "--derotate must be in [0, 180] degrees",
+        ),
+        (
+            ["--window-at-keypoint", "--derotate=5"],
+            "--derotate needs the global motion estimate",
         ),
     ] {
         let o = run(&[&["--orb-only"][..], &bad[..]].concat());

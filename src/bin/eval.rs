@@ -5,7 +5,8 @@
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
 //! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
 //! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT | --orb-only]
-//!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--ratio-exclusion PX] [--json FILE]
+//!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--ratio-exclusion PX] [--roll DEG]
+//!          [--derotate DEG] [--json FILE]
 //! eval seg --checkpoint DIR_OR_FILE --data DIR [--split FILE] [--backend ndarray|flex]
 //!          [--json FILE] [--out DIR] [--limit N]
 //! ```
@@ -89,9 +90,10 @@ struct MatchingArgs {
     /// Roll-compensated FPFDCNN matching: when the global motion estimate rotates by at
     /// least this many degrees, the second image is turned back by it and described again
     /// (one more network pass), and those matches are kept if there are as many (0: off,
-    /// FPFDCNN + range matcher as the paper has it).
-    #[arg(long, default_value_t = sdf_slam::fpfdcnn::derotation::DEFAULT_DEROTATE_DEG)]
-    derotate: f64,
+    /// FPFDCNN + range matcher as the paper has it) [default: 5; off with
+    /// --window-at-keypoint, which has no motion estimate].
+    #[arg(long)]
+    derotate: Option<f64>,
     /// FPFDCNN checkpoint (model.bpk, its folder, or a training run folder); default: the
     /// bundled weights/fpfdcnn.
     #[arg(long)]
@@ -268,14 +270,17 @@ fn matching(a: MatchingArgs) -> Result<()> {
         "--roll must be in [-180, 180] degrees, got {}",
         a.roll
     );
+    let derotate = match (a.derotate, a.window_at_keypoint) {
+        (Some(d), true) if d != 0.0 => anyhow::bail!(
+            "--derotate needs the global motion estimate: leave out --window-at-keypoint"
+        ),
+        (Some(d), _) => d,
+        (None, true) => 0.0,
+        (None, false) => sdf_slam::fpfdcnn::derotation::DEFAULT_DEROTATE_DEG,
+    };
     anyhow::ensure!(
-        (0.0..=180.0).contains(&a.derotate),
-        "--derotate must be in [0, 180] degrees (0: off), got {}",
-        a.derotate
-    );
-    anyhow::ensure!(
-        a.derotate == 0.0 || !a.window_at_keypoint,
-        "--derotate needs the global motion estimate: leave out --window-at-keypoint"
+        (0.0..=180.0).contains(&derotate),
+        "--derotate must be in [0, 180] degrees (0: off), got {derotate}"
     );
     let adaptation =
         (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
@@ -328,9 +333,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
             .map(sdf_slam::dataset::photometric::Degradation::parse)
             .transpose()?,
         roll_deg: a.roll,
-        derotation: sdf_slam::fpfdcnn::derotation::DerotationConfig {
-            min_deg: a.derotate,
-        },
+        derotation: sdf_slam::fpfdcnn::derotation::DerotationConfig { min_deg: derotate },
         adaptation,
         ..Default::default()
     };

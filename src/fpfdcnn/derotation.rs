@@ -5,11 +5,13 @@
 //! optical axis between two images costs it matches (README, *Roll: stages 15 and 18*). A roll
 //! turns the whole image about the principal point, so it shows in the global image motion the
 //! guided range matcher already estimates ([`guided_range_match`]): when that affine motion
-//! rotates by at least [`DerotationConfig::min_deg`], image B is turned back by that angle,
+//! rotates by at least [`DerotationConfig::min_deg`], image B is turned back by that angle
+//! about its centre (the affine guide absorbs the shift between centre and principal point),
 //! described again (one more network pass), and its keypoints, mapped back into B's pixels,
 //! are matched in place of the first ones if they give at least as many matches. Keypoints
 //! whose back-mapped position lies within the detector's border of B's edge are dropped: the
-//! turned image's corners hold no recorded pixels there.
+//! turned image's corners hold B's edge pixels smeared outwards, not recorded content. The
+//! turned image keeps the detector's `top_k`, so a few keypoints fewer remain.
 
 use super::homography::Homography;
 use super::inference::{Features, FpfdcnnDetector};
@@ -94,7 +96,9 @@ pub fn match_with_derotation(
     let back = Homography::rotation(-angle, w, h);
     let turned = gray_from_f32(&back.warp(&GrayF32::from_gray(b), [0, 0], w, h));
     let found = detector.detect(&turned)?;
-    let features_b = in_original(&found, &back, w, h, detector.config.border as f32);
+    // The detector's border is in pixels of the network's input.
+    let border = detector.config.border as f32 / detector.config.input_scale.max(1e-3);
+    let features_b = in_original(&found, &back, w, h, border);
     let (matches, _) = guided(fa, &features_b, range, guide)?;
     Ok(if matches.len() >= first.matches.len() {
         PairMatches {

@@ -19,6 +19,13 @@
 //!   not used as negatives (their descriptors are bilinear blends of the same
 //!   16x16 cells, so the network cannot tell them apart).
 //!
+//! * Shift consistency (optional, `shift_consistency`, 0 by default): the detector
+//!   predicts each 16x16 cell's sub-pixel probabilities from that cell's features, so a
+//!   single pass carries the cell grid, which `eval matching` averages out over four
+//!   placements. This term runs image A again shifted by half a cell and pulls both
+//!   probability maps, on their overlap, towards their mean ([`shift_consistency`]), so
+//!   that one pass (what `slam` runs) looks more like the average of placements.
+//!
 //! Descriptors are sampled from the coarse L10 map at the (sub-pixel) match
 //! positions with the bilinear weights of the FD layer, as a sparse matrix
 //! product, so the loss is differentiable on every backend.
@@ -53,6 +60,8 @@ pub struct FpfdcnnLossConfig {
     pub near_negatives: usize,
     /// Radius of that ring, pixels (training resolution).
     pub near_radius_px: f32,
+    /// Weight of the shift-consistency term (0: off, the default; [`shift_consistency`]).
+    pub shift_consistency: f64,
 }
 
 impl Default for FpfdcnnLossConfig {
@@ -67,6 +76,7 @@ impl Default for FpfdcnnLossConfig {
             max_matches: 192,
             near_negatives: 0,
             near_radius_px: 12.0,
+            shift_consistency: 0.0,
         }
     }
 }
@@ -78,6 +88,7 @@ impl FpfdcnnLossConfig {
             (self.detector_weight, "detector_weight"),
             (self.localization_weight, "localization_weight"),
             (self.descriptor_weight, "descriptor_weight"),
+            (self.shift_consistency, "shift_consistency"),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!(
@@ -195,6 +206,23 @@ pub fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tens
             .mul(p.neg().add_scalar(1.0).log());
     let total = weights.clone().sum();
     ll.mul(weights).sum().neg().div(total)
+}
+
+/// Shift consistency of the FP probability maps `prob` (`[N, 1, H, W]`, of an image) and
+/// `shifted` (`[N, 1, H − 2s, W − 2s]`, of the same image cropped by `s` pixels on every
+/// side, `s` half a cell): on their overlap each map is pulled towards the pair's mean
+/// (detached) by [`detector_bce`] with soft targets, averaged over the two.
+pub fn shift_consistency(
+    prob: Tensor<4>,
+    shifted: Tensor<4>,
+    s: usize,
+    pos_weight: f64,
+) -> Tensor<1> {
+    let [n, c, h, w] = prob.dims();
+    let centre = prob.slice([0..n, 0..c, s..h - s, s..w - s]);
+    let mean = (centre.clone() + shifted.clone()).div_scalar(2.0).detach();
+    (detector_bce(centre, mean.clone(), pos_weight) + detector_bce(shifted, mean, pos_weight))
+        .div_scalar(2.0)
 }
 
 /// Localisation term: cross-entropy of the softmax over each cell's `cell²` logits
@@ -359,6 +387,30 @@ mod tests {
 
     fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.into_data().try_to_vec::<f32>().unwrap()
+    }
+
+    #[test]
+    fn shift_consistency_is_least_when_the_shifted_map_agrees() {
+        let d = device();
+        // A 6x6 map and the 2x2 map of the same image cropped by 2 px on every side.
+        let prob: Vec<f32> = (0..36).map(|k| 0.01 + 0.02 * (k % 7) as f32).collect();
+        let map = Tensor::<4>::from_data(TensorData::new(prob.clone(), [1, 1, 6, 6]), &d);
+        let centre: Vec<f32> = [14, 15, 20, 21].iter().map(|&k| prob[k]).collect();
+        let agree = Tensor::<4>::from_data(TensorData::new(centre.clone(), [1, 1, 2, 2]), &d);
+        let other: Vec<f32> = centre.iter().rev().map(|p| p + 0.3).collect();
+        let differ = Tensor::<4>::from_data(TensorData::new(other, [1, 1, 2, 2]), &d);
+        let a = values(shift_consistency(map.clone(), agree, 2, 50.0))[0];
+        let b = values(shift_consistency(map.clone(), differ, 2, 50.0))[0];
+        // Agreeing maps cost what each map's BCE against itself costs (its entropy).
+        let c = Tensor::<4>::from_data(TensorData::new(centre, [1, 1, 2, 2]), &d);
+        let own = values(detector_bce(c.clone(), c, 50.0))[0];
+        assert!((a - own).abs() < 1e-5, "{a} vs {own}");
+        assert!(b > a + 0.05, "{b} vs {a}");
+        let bad = FpfdcnnLossConfig {
+            shift_consistency: -1.0,
+            ..Default::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("shift_consistency"));
     }
 
     #[test]

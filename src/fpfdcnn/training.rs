@@ -9,7 +9,7 @@ pub use super::config::FpfdcnnTrainConfig;
 use super::data::{FpBatch, FpDataset, FpHostBatch};
 use super::loss::{
     NearNegatives, descriptor_infonce, detector_bce, detector_cell_ce, ring_points,
-    sample_descriptors,
+    sample_descriptors, shift_consistency,
 };
 use super::model::Fpfdcnn;
 use crate::error::{Error, Result};
@@ -25,6 +25,8 @@ struct BatchLoss {
     total: Tensor<1>,
     detector: f64,
     localization: f64,
+    /// The shift-consistency term, when its weight is not 0.
+    shift: Option<f64>,
     descriptor: f64,
     accuracy: f64,
 }
@@ -32,10 +34,21 @@ struct BatchLoss {
 fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Result<BatchLoss> {
     let size = cfg.data.size;
     let err = Error::from;
-    let out_a = model.forward(batch.image_a).map_err(err)?;
+    let image_a = batch.image_a;
+    let out_a = model.forward(image_a.clone()).map_err(err)?;
     let out_b = model.forward(batch.image_b).map_err(err)?;
     let l = &cfg.loss;
     let cell = model.cell();
+    // Image A again, half a cell in from every side: its FP map against A's.
+    let shift = if l.shift_consistency > 0.0 {
+        let [n, c, h, w] = image_a.dims();
+        let s = cell / 2;
+        let cropped = image_a.slice([0..n, 0..c, s..h - s, s..w - s]);
+        let p = model.forward(cropped).map_err(err)?.prob;
+        Some(shift_consistency(out_a.prob.clone(), p, s, l.pos_weight))
+    } else {
+        None
+    };
     let loc = (detector_cell_ce(out_a.logits, batch.target_a.clone(), cell)
         + detector_cell_ce(out_b.logits, batch.target_b.clone(), cell))
     .div_scalar(2.0);
@@ -88,13 +101,19 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
     let detector = det.clone().into_scalar::<f32>() as f64;
     let localization = loc.clone().into_scalar::<f32>() as f64;
     let descriptor = desc.clone().into_scalar::<f32>() as f64;
-    let total = det.mul_scalar(l.detector_weight)
+    let mut total = det.mul_scalar(l.detector_weight)
         + loc.mul_scalar(l.localization_weight)
         + desc.mul_scalar(l.descriptor_weight);
+    let mut shift_value = None;
+    if let Some(t) = shift {
+        shift_value = Some(t.clone().into_scalar::<f32>() as f64);
+        total = total + t.mul_scalar(l.shift_consistency);
+    }
     Ok(BatchLoss {
         total,
         detector,
         localization,
+        shift: shift_value,
         descriptor,
         accuracy: acc / n,
     })
@@ -103,12 +122,14 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
 impl BatchLoss {
     /// The terms as the epoch means record them (`train_detector`, ...).
     fn terms(&self) -> Vec<(&'static str, f64)> {
-        vec![
+        let mut terms = vec![
             ("detector", self.detector),
             ("localization", self.localization),
             ("descriptor", self.descriptor),
             ("desc_top1", self.accuracy),
-        ]
+        ];
+        terms.extend(self.shift.map(|s| ("shift", s)));
+        terms
     }
 }
 

@@ -222,6 +222,13 @@ impl FpfdcnnTrainConfig {
             .map_err(|m| Error::invalid(path, m))?;
         cfg.loss.validate().map_err(|m| Error::invalid(path, m))?;
         cfg.data.validate().map_err(|m| Error::invalid(path, m))?;
+        let [h, w] = cfg.data.size;
+        if cfg.loss.shift_consistency > 0.0 && h.min(w) < 32 {
+            // The term crops half a cell off every side, and a cell must remain.
+            return bad(format!(
+                "loss.shift_consistency needs data.size of at least 32x32, got {h}x{w}"
+            ));
+        }
         Ok(cfg)
     }
 
@@ -260,5 +267,22 @@ mod tests {
         assert!(e.contains("both"), "{e}");
         let normalized = toml::to_string_pretty(&new).unwrap();
         assert_eq!(FpfdcnnTrainConfig::parse(&normalized, p).unwrap(), new);
+    }
+
+    /// The shift-consistency term crops half a cell off every side of the training crop, so
+    /// a crop of one cell is refused before training starts.
+    #[test]
+    fn shift_consistency_needs_crops_of_two_cells() {
+        let p = Path::new("c.toml");
+        let with = |size: &str| {
+            let text = NEW.replace("size = [96, 128]", size);
+            FpfdcnnTrainConfig::parse(&format!("{text}[loss]\nshift_consistency = 1.0\n"), p)
+        };
+        assert!(with("size = [32, 48]").is_ok());
+        let e = with("size = [16, 48]").unwrap_err().to_string();
+        assert!(
+            e.starts_with("c.toml") && e.contains("at least 32x32, got 16x48"),
+            "{e}"
+        );
     }
 }

@@ -140,6 +140,10 @@ struct MatchingArgs {
     /// (half-cell shifts; each placement is one more network pass).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
+    /// Take FPFDCNN's descriptors from the first grid placement only, as before 2026-12-01
+    /// (by default they are averaged over the `--grid-shifts` placements).
+    #[arg(long)]
+    no_descriptor_averaging: bool,
     /// No FPFDCNN keypoint closer than this to the image border, pixels (ORB's edge
     /// threshold keeps its keypoints 31 px in).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::DetectorConfig::default().border)]
@@ -311,6 +315,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 input_scale: a.fpfdcnn_scale,
                 subpixel_radius: a.subpixel,
                 grid_shifts: a.grid_shifts,
+                average_descriptors: !a.no_descriptor_averaging,
                 levels: a.levels,
                 border: a.border,
                 level_factor: a.level_factor,

@@ -49,6 +49,11 @@ pub struct DetectorConfig {
     /// detector predicts a cell's 256 sub-pixel probabilities from that cell's features,
     /// so its map carries the grid; other placements average that out.
     pub grid_shifts: usize,
+    /// With several [`Self::grid_shifts`], average each keypoint's descriptor over the
+    /// placements too (each placement's unit-normalised, then the mean normalised), at no
+    /// extra network pass. The descriptor map is 16 times coarser than the image, so one
+    /// placement's bilinear samples carry its grid as the FP map does ([`DEFAULT_AVERAGE_DESCRIPTORS`]).
+    pub average_descriptors: bool,
     /// Detect on this many levels of an image pyramid (1: the image as it is), each level
     /// [`Self::level_factor`] smaller than the one before, keypoints reported in the
     /// original image's pixels. As ORB does, `top_k` is shared out over the levels in
@@ -123,6 +128,11 @@ pub const DEFAULT_SMOOTHING: f32 = 2.0;
 /// same accuracy (README, *Stage 10*). `slam` sets its own (`fpfdcnn_border`).
 pub const DEFAULT_BORDER: usize = 16;
 
+/// Default [`DetectorConfig::average_descriptors`]: on, adopted 2026-12-01 (README,
+/// *Descriptors averaged over the grid placements*): on the validation pairs with four
+/// placements 30-39 % more correct matches at 0.9-3.0 points more accuracy.
+pub const DEFAULT_AVERAGE_DESCRIPTORS: bool = true;
+
 /// Default [`DetectorConfig::grid_shifts`]: four placements, the setting of the README's
 /// Table 6/7 figures (`slam` sets one pass for speed).
 pub const DEFAULT_GRID_SHIFTS: usize = 4;
@@ -138,6 +148,7 @@ impl Default for DetectorConfig {
             input_scale: 1.0,
             subpixel_radius: 0,
             grid_shifts: DEFAULT_GRID_SHIFTS,
+            average_descriptors: DEFAULT_AVERAGE_DESCRIPTORS,
             levels: 1,
             level_factor: 1.2,
         }
@@ -413,10 +424,15 @@ impl FpfdcnnDetector {
             4 => &[[half, 0], [0, half], [half, half]],
             _ => &[],
         };
+        // The other placements' descriptor maps, when their descriptors are averaged in.
+        let mut other_placements = Vec::new();
         for &shift in shifts {
-            let (other, _, _) = self.run_network(gray, shift)?;
+            let (other, descriptors, size) = self.run_network(gray, shift)?;
             for (a, b) in cropped.data.iter_mut().zip(&other.data) {
                 *a += b;
+            }
+            if self.config.average_descriptors {
+                other_placements.push((shift, descriptors, size));
             }
         }
         let passes = (shifts.len() + 1) as f32;
@@ -431,22 +447,22 @@ impl FpfdcnnDetector {
         };
         let picks = select_keypoints(&cropped.data, w, h, &level);
         let points: Vec<(usize, usize)> = picks.iter().map(|p| (p.0, p.1)).collect();
-        let mut descriptors = Vec::with_capacity(points.len() * dim);
+        let mut descriptors = Vec::new();
         if !points.is_empty() {
-            let d = sample_bilinear_at(&map, [dim, hc, wc], [hp, wp], &points)
+            descriptors = sample_bilinear_at(&map, [dim, hc, wc], [hp, wp], &points)
                 .map_err(super::FpfdcnnError::from)?;
-            for v in d.chunks_exact(dim) {
-                // Scale first so that squaring cannot overflow.
-                let peak = v.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-30);
-                let n = v
-                    .iter()
-                    .map(|x| (x / peak).powi(2))
-                    .sum::<f32>()
-                    .sqrt()
-                    .max(1e-12)
-                    * peak;
-                descriptors.extend(v.iter().map(|x| x / n));
+            if !other_placements.is_empty() {
+                normalise_rows(&mut descriptors, dim);
+                for ([ox, oy], (m, dims), size) in &other_placements {
+                    let at: Vec<(usize, usize)> =
+                        points.iter().map(|&(x, y)| (x + ox, y + oy)).collect();
+                    let mut d = sample_bilinear_at(m, *dims, *size, &at)
+                        .map_err(super::FpfdcnnError::from)?;
+                    normalise_rows(&mut d, dim);
+                    descriptors.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
+                }
             }
+            normalise_rows(&mut descriptors, dim);
         }
         Ok(Features {
             points: points.iter().map(|&(x, y)| [x as f32, y as f32]).collect(),
@@ -454,6 +470,22 @@ impl FpfdcnnDetector {
             descriptors,
             dim,
         })
+    }
+}
+
+/// Scales each `dim`-long row of `d` to unit length (L2).
+fn normalise_rows(d: &mut [f32], dim: usize) {
+    for v in d.chunks_exact_mut(dim) {
+        // Scale first so that squaring cannot overflow.
+        let peak = v.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1e-30);
+        let n = v
+            .iter()
+            .map(|x| (x / peak).powi(2))
+            .sum::<f32>()
+            .sqrt()
+            .max(1e-12)
+            * peak;
+        v.iter_mut().for_each(|x| *x /= n);
     }
 }
 
@@ -478,6 +510,7 @@ mod tests {
             input_scale: 1.0,
             subpixel_radius: 0,
             grid_shifts: 1,
+            average_descriptors: false,
             smoothing: 0.0,
             levels: 1,
             level_factor: 1.2,
@@ -608,6 +641,54 @@ mod tests {
             ..DetectorConfig::default()
         };
         assert!(bad.validate().unwrap_err().contains("grid_shifts"));
+    }
+
+    #[test]
+    fn descriptors_are_the_normalised_mean_over_the_placements() {
+        let config = |grid_shifts, average_descriptors| DetectorConfig {
+            grid_shifts,
+            average_descriptors,
+            threshold: 0.0,
+            top_k: 12,
+            border: 4,
+            ..DetectorConfig::default()
+        };
+        let det = random_detector(8, config(4, true));
+        let with = |c| FpfdcnnDetector::new(det.model.clone(), det.device.clone(), c);
+        let img = GrayImage::from_fn(48, 40, |x, y| {
+            image::Luma([((x * 31 + y * 17 + x * y) % 253) as u8])
+        });
+        let averaged = det.detect(&img).unwrap();
+        let first = with(config(4, false)).detect(&img).unwrap();
+        assert_eq!(averaged.points, first.points);
+        assert_eq!(averaged.scores, first.scores);
+        assert_ne!(averaged.descriptors, first.descriptors);
+        // The same from each placement's own map, sampled where the point lies in it.
+        let points: Vec<(usize, usize)> = averaged
+            .points
+            .iter()
+            .map(|p| (p[0] as usize, p[1] as usize))
+            .collect();
+        let mut expected = vec![0.0f32; points.len() * 8];
+        for shift in [[0, 0], [8, 0], [0, 8], [8, 8]] {
+            let (_, (map, dims), size) = det.run_network(&img, shift).unwrap();
+            let at: Vec<(usize, usize)> = points
+                .iter()
+                .map(|&(x, y)| (x + shift[0], y + shift[1]))
+                .collect();
+            let mut d = sample_bilinear_at(&map, dims, size, &at).unwrap();
+            normalise_rows(&mut d, 8);
+            expected.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
+        }
+        normalise_rows(&mut expected, 8);
+        for (a, b) in averaged.descriptors.iter().zip(&expected) {
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+        // One placement: nothing to average.
+        assert_eq!(
+            with(config(1, true)).detect(&img).unwrap().descriptors,
+            with(config(1, false)).detect(&img).unwrap().descriptors
+        );
     }
 
     #[test]

@@ -130,7 +130,8 @@ pub const DEFAULT_BORDER: usize = 16;
 
 /// Default [`DetectorConfig::average_descriptors`]: on, adopted 2026-12-01 (README,
 /// *Descriptors averaged over the grid placements*): on the validation pairs with four
-/// placements 30-39 % more correct matches at 0.9-3.0 points more accuracy.
+/// placements 28-39 % more correct matches at 0.9-3.0 points more accuracy; on the final
+/// split 116 % / 146 % of ORB + BF's correct matches at 76.4 % / 78.7 % (clear / blurred).
 pub const DEFAULT_AVERAGE_DESCRIPTORS: bool = true;
 
 /// Default [`DetectorConfig::grid_shifts`]: four placements, the setting of the README's

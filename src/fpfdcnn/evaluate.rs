@@ -661,16 +661,21 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
     s
 }
 
-/// FPFDCNN's keypoint selection, e.g. "top 500, NMS 4 px, FP map averaged over 4 cell-grid
-/// placements, smoothed 2 px".
+/// FPFDCNN's keypoint selection, e.g. "top 500, NMS 4 px, FP map and descriptors averaged
+/// over 4 cell-grid placements, smoothed 2 px".
 pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
     let mut s = format!("top {}, NMS {} px", cfg.top_k, cfg.nms_radius);
     if cfg.input_scale != 1.0 {
         s.push_str(&format!(", image resized x{}", cfg.input_scale));
     }
     if cfg.grid_shifts > 1 {
+        let what = if cfg.average_descriptors {
+            "FP map and descriptors"
+        } else {
+            "FP map"
+        };
         s.push_str(&format!(
-            ", FP map averaged over {} cell-grid placements",
+            ", {what} averaged over {} cell-grid placements",
             cfg.grid_shifts
         ));
     }

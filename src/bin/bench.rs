@@ -18,8 +18,8 @@
 //!   (`PackedFpfdcnn`), on GPUs Burn's;
 //! * `fpfdcnn-infer-burn`: the same with Burn's kernels (`Fpfdcnn::forward` + `descriptors_at`);
 //! * `fpfdcnn-detect`: the whole default detector on one 480×640 grey image (`FpfdcnnDetector::
-//!   detect` with `DetectorConfig::default()`: the FP map and descriptors averaged over four cell-grid
-//!   placements, so four network passes, smoothing, NMS, top 500, descriptors); no reference;
+//!   detect` with `DetectorConfig::default()`: the FP map and descriptors averaged over four
+//!   cell-grid placements, so four network passes, smoothing, NMS, top 500); no reference;
 //! * `fpfdcnn-train`: one SGD step at batch 4, 240×320 with a stand-in loss (mean of the
 //!   probability map + mean of the descriptors: the FPFDCNN loss is written elsewhere).
 //!

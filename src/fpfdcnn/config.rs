@@ -223,11 +223,19 @@ impl FpfdcnnTrainConfig {
         cfg.loss.validate().map_err(|m| Error::invalid(path, m))?;
         cfg.data.validate().map_err(|m| Error::invalid(path, m))?;
         let [h, w] = cfg.data.size;
-        if cfg.loss.shift_consistency > 0.0 && h.min(w) < 32 {
-            // The term crops half a cell off every side, and a cell must remain.
-            return bad(format!(
-                "loss.shift_consistency needs data.size of at least 32x32, got {h}x{w}"
-            ));
+        for (weight, what) in [
+            (cfg.loss.shift_consistency, "shift_consistency"),
+            (
+                cfg.loss.descriptor_shift_consistency,
+                "descriptor_shift_consistency",
+            ),
+        ] {
+            if weight > 0.0 && h.min(w) < 32 {
+                // The term crops half a cell off every side, and a cell must remain.
+                return bad(format!(
+                    "loss.{what} needs data.size of at least 32x32, got {h}x{w}"
+                ));
+            }
         }
         Ok(cfg)
     }

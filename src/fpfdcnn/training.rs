@@ -8,8 +8,8 @@
 pub use super::config::FpfdcnnTrainConfig;
 use super::data::{FpBatch, FpDataset, FpHostBatch};
 use super::loss::{
-    NearNegatives, descriptor_infonce, detector_bce, detector_cell_ce, ring_points,
-    sample_descriptors, shift_consistency,
+    NearNegatives, descriptor_infonce, descriptor_shift_consistency, detector_bce,
+    detector_cell_ce, ring_points, sample_descriptors, shift_consistency,
 };
 use super::model::Fpfdcnn;
 use crate::error::{Error, Result};
@@ -27,6 +27,8 @@ struct BatchLoss {
     localization: f64,
     /// The shift-consistency term, when its weight is not 0.
     shift: Option<f64>,
+    /// The descriptors' shift-consistency term, when its weight is not 0.
+    dshift: Option<f64>,
     descriptor: f64,
     accuracy: f64,
 }
@@ -39,16 +41,25 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
     let out_b = model.forward(batch.image_b).map_err(err)?;
     let l = &cfg.loss;
     let cell = model.cell();
-    // Image A again, half a cell in from every side: its FP map against A's.
-    let shift = if l.shift_consistency > 0.0 {
+    // Image A again, half a cell in from every side: its FP map and descriptors against A's.
+    let s = cell / 2;
+    let shifted_a = if l.shift_consistency > 0.0 || l.descriptor_shift_consistency > 0.0 {
         let [n, c, h, w] = image_a.dims();
-        let s = cell / 2;
         let cropped = image_a.slice([0..n, 0..c, s..h - s, s..w - s]);
-        let p = model.forward(cropped).map_err(err)?.prob;
-        Some(shift_consistency(out_a.prob.clone(), p, s, l.pos_weight))
+        Some(model.forward(cropped).map_err(err)?)
     } else {
         None
     };
+    let shift = match &shifted_a {
+        Some(out) if l.shift_consistency > 0.0 => Some(shift_consistency(
+            out_a.prob.clone(),
+            out.prob.clone(),
+            s,
+            l.pos_weight,
+        )),
+        _ => None,
+    };
+    let mut dshift_terms = Vec::new();
     let loc = (detector_cell_ce(out_a.logits, batch.target_a.clone(), cell)
         + detector_cell_ce(out_b.logits, batch.target_b.clone(), cell))
     .div_scalar(2.0);
@@ -67,6 +78,39 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
         let pa: Vec<[f32; 2]> = m.iter().map(|x| x.a).collect();
         let pb: Vec<[f32; 2]> = m.iter().map(|x| x.b).collect();
         let da = sample_descriptors(&out_a.descriptors, i, &pa, size);
+        if let Some(out) = shifted_a
+            .as_ref()
+            .filter(|_| l.descriptor_shift_consistency > 0.0)
+        {
+            // A's matched points inside the crop, in the crop's pixels.
+            let [h, w] = size;
+            let (lo, hi) = (s as f32, [(w - s) as f32, (h - s) as f32]);
+            let inside: Vec<usize> = (0..pa.len())
+                .filter(|&k| {
+                    let [x, y] = pa[k];
+                    x >= lo && y >= lo && x <= hi[0] - 1.0 && y <= hi[1] - 1.0
+                })
+                .collect();
+            if !inside.is_empty() {
+                let at: Vec<[f32; 2]> = inside
+                    .iter()
+                    .map(|&k| [pa[k][0] - lo, pa[k][1] - lo])
+                    .collect();
+                let shifted = sample_descriptors(&out.descriptors, i, &at, [h - 2 * s, w - 2 * s]);
+                let device = da.device();
+                let rows = Tensor::<1, Int>::from_data(
+                    TensorData::new(
+                        inside.iter().map(|&k| k as i64).collect::<Vec<_>>(),
+                        [inside.len()],
+                    ),
+                    &device,
+                );
+                dshift_terms.push(descriptor_shift_consistency(
+                    da.clone().select(0, rows),
+                    shifted,
+                ));
+            }
+        }
         let db = sample_descriptors(&out_b.descriptors, i, &pb, size);
         let near = (l.near_negatives > 0).then(|| {
             let k = l.near_negatives;
@@ -109,11 +153,20 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
         shift_value = Some(t.clone().into_scalar::<f32>() as f64);
         total = total + t.mul_scalar(l.shift_consistency);
     }
+    // A batch without matched points inside the crop (rare) records 0.
+    let mut dshift_value = (l.descriptor_shift_consistency > 0.0).then_some(0.0);
+    if !dshift_terms.is_empty() {
+        let k = dshift_terms.len() as f64;
+        let t = Tensor::cat(dshift_terms, 0).sum().div_scalar(k);
+        dshift_value = Some(t.clone().into_scalar::<f32>() as f64);
+        total = total + t.mul_scalar(l.descriptor_shift_consistency);
+    }
     Ok(BatchLoss {
         total,
         detector,
         localization,
         shift: shift_value,
+        dshift: dshift_value,
         descriptor,
         accuracy: acc / n,
     })
@@ -129,6 +182,7 @@ impl BatchLoss {
             ("desc_top1", self.accuracy),
         ];
         terms.extend(self.shift.map(|s| ("shift", s)));
+        terms.extend(self.dshift.map(|s| ("dshift", s)));
         terms
     }
 }

@@ -34,6 +34,10 @@ max_matches = 16
 exclusion_px = 2.0
 "#;
 
+/// Burn's seeded random stream is global to the process, so two trainings at once would draw
+/// from each other's: the tests that train take turns.
+static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn tmp(name: &str) -> common::ScratchDir {
     common::fresh_path("fptrain", name)
 }
@@ -51,6 +55,7 @@ fn run(out: &Path, epochs: usize, resume: bool) -> sdf_slam::Result<()> {
 
 #[test]
 fn resumed_training_continues_exactly() {
+    let _turn = TRAINING.lock().unwrap_or_else(|e| e.into_inner());
     let (full, split) = (tmp("full"), tmp("split"));
     run(&full, 2, false).unwrap();
     run(&split, 1, false).unwrap();
@@ -120,6 +125,39 @@ fn resumed_training_continues_exactly() {
     assert!(e.contains("model.bpk") && e.contains("config.toml"), "{e}");
     std::fs::remove_dir_all(full).unwrap();
     std::fs::remove_dir_all(split).unwrap();
+}
+
+/// Both shift-consistency terms run in a real training step and reach the metrics.
+#[test]
+fn shift_consistency_terms_train_and_are_recorded() {
+    let _turn = TRAINING.lock().unwrap_or_else(|e| e.into_inner());
+    let out = tmp("shift");
+    let config = CONFIG.replace(
+        "[loss]\n",
+        "[loss]\nshift_consistency = 1.0\ndescriptor_shift_consistency = 4.0\n",
+    );
+    let opts = RunOptions {
+        out: Some(out.to_path_buf()),
+        epochs: Some(1),
+        quiet: true,
+        ..Default::default()
+    };
+    sdf_slam::fpfdcnn::training::run(Path::new("inline.toml"), &config, &opts).unwrap();
+    let latest = RunDir {
+        root: out.to_path_buf(),
+        keep: 0,
+    }
+    .latest()
+    .unwrap()
+    .unwrap();
+    let values = &latest.state.history.epochs[0].values;
+    for key in ["train_shift", "train_dshift", "val_shift", "val_dshift"] {
+        let v = values[key];
+        assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
+    }
+    // 1 - cos of unit descriptors towards their mean: below 1 unless they oppose.
+    assert!(values["train_dshift"] < 1.0, "{values:?}");
+    std::fs::remove_dir_all(out).unwrap();
 }
 
 #[test]

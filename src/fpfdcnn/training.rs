@@ -82,34 +82,14 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
             .as_ref()
             .filter(|_| l.descriptor_shift_consistency > 0.0)
         {
-            // A's matched points inside the crop, in the crop's pixels.
-            let [h, w] = size;
-            let (lo, hi) = (s as f32, [(w - s) as f32, (h - s) as f32]);
-            let inside: Vec<usize> = (0..pa.len())
-                .filter(|&k| {
-                    let [x, y] = pa[k];
-                    x >= lo && y >= lo && x <= hi[0] - 1.0 && y <= hi[1] - 1.0
-                })
-                .collect();
-            if !inside.is_empty() {
-                let at: Vec<[f32; 2]> = inside
-                    .iter()
-                    .map(|&k| [pa[k][0] - lo, pa[k][1] - lo])
-                    .collect();
-                let shifted = sample_descriptors(&out.descriptors, i, &at, [h - 2 * s, w - 2 * s]);
-                let device = da.device();
-                let rows = Tensor::<1, Int>::from_data(
-                    TensorData::new(
-                        inside.iter().map(|&k| k as i64).collect::<Vec<_>>(),
-                        [inside.len()],
-                    ),
-                    &device,
-                );
-                dshift_terms.push(descriptor_shift_consistency(
-                    da.clone().select(0, rows),
-                    shifted,
-                ));
-            }
+            dshift_terms.extend(placement_consistency(
+                &out.descriptors,
+                i,
+                &pa,
+                &da,
+                s,
+                size,
+            ));
         }
         let db = sample_descriptors(&out_b.descriptors, i, &pb, size);
         let near = (l.near_negatives > 0).then(|| {
@@ -170,6 +150,41 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
         descriptor,
         accuracy: acc / n,
     })
+}
+
+/// [`descriptor_shift_consistency`] of image `batch`'s descriptors `da` at `points` against
+/// those of the same image cropped by `s` pixels on every side (`shifted`, its coarse map), at
+/// the points inside that crop; `None` when none is.
+fn placement_consistency(
+    shifted: &Tensor<4>,
+    batch: usize,
+    points: &[[f32; 2]],
+    da: &Tensor<2>,
+    s: usize,
+    [h, w]: [usize; 2],
+) -> Option<Tensor<1>> {
+    let lo = s as f32;
+    let (x_max, y_max) = ((w - s - 1) as f32, (h - s - 1) as f32);
+    let inside: Vec<usize> = (0..points.len())
+        .filter(|&k| {
+            let [x, y] = points[k];
+            x >= lo && y >= lo && x <= x_max && y <= y_max
+        })
+        .collect();
+    if inside.is_empty() {
+        return None;
+    }
+    let at: Vec<[f32; 2]> = inside
+        .iter()
+        .map(|&k| [points[k][0] - lo, points[k][1] - lo])
+        .collect();
+    let other = sample_descriptors(shifted, batch, &at, [h - 2 * s, w - 2 * s]);
+    let rows: Vec<i64> = inside.iter().map(|&k| k as i64).collect();
+    let rows = Tensor::<1, Int>::from_data(TensorData::new(rows, [inside.len()]), &da.device());
+    Some(descriptor_shift_consistency(
+        da.clone().select(0, rows),
+        other,
+    ))
 }
 
 impl BatchLoss {

@@ -144,6 +144,11 @@ struct MatchingArgs {
     /// (by default they are averaged over the `--grid-shifts` placements).
     #[arg(long)]
     no_descriptor_averaging: bool,
+    /// With one placement (`--grid-shifts 1`), average each FPFDCNN descriptor over five
+    /// samples of the coarse map: at the keypoint and this many pixels away along both
+    /// diagonals (0: the keypoint's sample alone, as before 2026-12-01).
+    #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_DESCRIPTOR_SPREAD)]
+    descriptor_spread: usize,
     /// No FPFDCNN keypoint closer than this to the image border, pixels (ORB's edge
     /// threshold keeps its keypoints 31 px in).
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::DetectorConfig::default().border)]
@@ -316,6 +321,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
                 subpixel_radius: a.subpixel,
                 grid_shifts: a.grid_shifts,
                 average_descriptors: !a.no_descriptor_averaging,
+                descriptor_spread: a.descriptor_spread,
                 levels: a.levels,
                 border: a.border,
                 level_factor: a.level_factor,

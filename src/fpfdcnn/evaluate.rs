@@ -679,6 +679,12 @@ pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
             cfg.grid_shifts
         ));
     }
+    if cfg.grid_shifts == 1 && cfg.descriptor_spread > 0 {
+        s.push_str(&format!(
+            ", descriptors spread over +-{} px diagonals",
+            cfg.descriptor_spread
+        ));
+    }
     if cfg.levels > 1 {
         s.push_str(&format!(
             ", {} pyramid levels x{}",

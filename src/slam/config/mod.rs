@@ -55,6 +55,9 @@ pub struct FeatureConfig {
     /// FPFDCNN: average the FP map over 1, 2 or 4 placements of the 16x16 cell grid (each
     /// a full network pass).
     pub fpfdcnn_grid_shifts: usize,
+    /// FPFDCNN: with one placement, average each descriptor over the keypoint and four
+    /// samples this many pixels away along the diagonals (0: off; `DetectorConfig::descriptor_spread`).
+    pub fpfdcnn_descriptor_spread: usize,
     /// ORB: FAST threshold, grey levels.
     pub orb_fast_threshold: u8,
     /// ORB: when fewer than half of `top_k` keypoints are found, detect again
@@ -81,6 +84,7 @@ impl Default for FeatureConfig {
             fpfdcnn_input_scale: 1.0,
             fpfdcnn_subpixel_radius: 0,
             fpfdcnn_grid_shifts: 1,
+            fpfdcnn_descriptor_spread: crate::fpfdcnn::inference::DEFAULT_DESCRIPTOR_SPREAD,
         }
     }
 }
@@ -96,6 +100,7 @@ impl FeatureConfig {
             input_scale: self.fpfdcnn_input_scale,
             subpixel_radius: self.fpfdcnn_subpixel_radius,
             grid_shifts: self.fpfdcnn_grid_shifts,
+            descriptor_spread: self.fpfdcnn_descriptor_spread,
             ..DetectorConfig::default()
         }
     }

@@ -144,6 +144,22 @@ struct MatchingArgs {
     /// (by default they are averaged over the `--grid-shifts` placements).
     #[arg(long)]
     no_descriptor_averaging: bool,
+    /// FPFDCNN's matches as matched: no refinement of the second image's point by patch
+    /// correlation (on by default since 2026-12-01).
+    #[arg(long)]
+    no_match_refinement: bool,
+    /// Refine ORB's matches by patch correlation too (to see what it gives the baseline).
+    #[arg(long)]
+    refine_orb: bool,
+    /// Match refinement: patch radius, pixels.
+    #[arg(long, default_value_t = sdf_slam::features::match_refine::MatchRefineConfig::default().patch_radius)]
+    refine_patch_radius: usize,
+    /// Match refinement: largest move along each axis, pixels.
+    #[arg(long, default_value_t = sdf_slam::features::match_refine::MatchRefineConfig::default().search_px)]
+    refine_search: usize,
+    /// Match refinement: least correlation (NCC) for a match to move.
+    #[arg(long, default_value_t = sdf_slam::features::match_refine::MatchRefineConfig::default().min_ncc)]
+    refine_min_ncc: f32,
     /// With one placement (`--grid-shifts 1`), average each FPFDCNN descriptor over five
     /// samples of the coarse map: at the keypoint and this many pixels away along both
     /// diagonals (0: the keypoint's sample alone, as before 2026-12-01).
@@ -346,8 +362,22 @@ fn matching(a: MatchingArgs) -> Result<()> {
         roll_deg: a.roll,
         derotation: sdf_slam::fpfdcnn::derotation::DerotationConfig { min_deg: derotate },
         adaptation,
+        refine_orb: a.refine_orb,
         ..Default::default()
     };
+    let refine = sdf_slam::features::match_refine::MatchRefineConfig {
+        patch_radius: a.refine_patch_radius,
+        search_px: a.refine_search,
+        min_ncc: a.refine_min_ncc,
+    };
+    refine
+        .validate()
+        .map_err(|m| anyhow::anyhow!("--refine-*: {m}"))?;
+    cfg.refine = Some(refine);
+    if a.no_match_refinement {
+        anyhow::ensure!(!a.refine_orb, "--refine-orb needs match refinement on");
+        cfg.refine = None;
+    }
     cfg.orb.n_features = a.keypoints;
     cfg.orb.n_levels = a.orb_levels;
     cfg.orb.validate()?;

@@ -4,6 +4,7 @@
 
 pub mod bf_matcher;
 pub mod harris;
+pub mod match_refine;
 pub mod orb;
 pub mod patch;
 pub mod subpix;

@@ -19,6 +19,7 @@ use crate::dataset::tum::{Frame, TumSequence};
 use crate::error::{Error, Result};
 use crate::features::bf_matcher::matched_pixels;
 use crate::features::harris::{HarrisConfig, Keypoint, harris_corners};
+use crate::features::match_refine::{MatchRefineConfig, refine_matches};
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
@@ -68,6 +69,11 @@ pub struct MatchingEvalConfig {
     /// Harris settings of the targets' repeatability (the FP pairs' by default; as many
     /// corners as ORB keypoints are kept).
     pub harris: HarrisConfig,
+    /// FPFDCNN's matches refined by patch correlation
+    /// ([`crate::features::match_refine`]); `None`: the keypoints as detected.
+    pub refine: Option<MatchRefineConfig>,
+    /// ORB's matches refined the same way (to see what refinement gives a baseline).
+    pub refine_orb: bool,
 }
 
 impl Default for MatchingEvalConfig {
@@ -88,6 +94,8 @@ impl Default for MatchingEvalConfig {
             pnp: PnpConfig::default(),
             adaptation: None,
             harris: FpConfig::default().harris,
+            refine: Some(MatchRefineConfig::default()),
+            refine_orb: false,
         }
     }
 }
@@ -125,6 +133,10 @@ pub struct ConditionResult {
     /// ([`MatchingEvalConfig::derotation`]).
     #[serde(default, skip_serializing_if = "is_zero_count")]
     pub derotated_pairs: usize,
+    /// Matches whose second point moved by patch correlation ([`MatchingEvalConfig::refine`]),
+    /// judged or not (a match without depth at its first point is not judged).
+    #[serde(default, skip_serializing_if = "is_zero_count")]
+    pub refined_matches: usize,
 }
 
 /// One method's results.
@@ -176,6 +188,7 @@ struct Acc {
     errors: Vec<f64>,
     repeat: Vec<Repeatability>,
     derotated: usize,
+    refined: usize,
 }
 
 impl Acc {
@@ -197,6 +210,7 @@ impl Acc {
             mean_trans_error_m: mean(&self.trans),
             pnp_failures: self.failures,
             derotated_pairs: self.derotated,
+            refined_matches: self.refined,
             keypoints: self.keypoints as f64 / self.images.max(1) as f64,
             within_px: [2.0, 5.0, 10.0, 20.0]
                 .iter()
@@ -291,16 +305,30 @@ fn fpfdcnn_pair(
     a: &GrayImage,
     b: &GrayImage,
     cfg: &MatchingEvalConfig,
-) -> Result<(PixelMatches, [Features; 2], bool)> {
+) -> Result<(PixelMatches, [Features; 2], Option<f64>)> {
     let (fa, fb) = (det.detect(a)?, det.detect(b)?);
     let guide = cfg.guide.as_ref().filter(|_| cfg.derotation.min_deg > 0.0);
     let Some(guide) = guide else {
         let m = fpfdcnn_matches(&fa, &fb, &cfg.range, cfg.guide.as_ref())?;
-        return Ok((m, [fa, fb], false));
+        return Ok((m, [fa, fb], None));
     };
     let r = match_with_derotation(det, &fa, b, fb, &cfg.range, guide, &cfg.derotation)?;
     let m = pixel_matches(&fa, &r.features_b, &r.matches);
-    Ok((m, [fa, r.features_b], r.derotated_deg.is_some()))
+    Ok((m, [fa, r.features_b], r.derotated_deg))
+}
+
+/// `matches` refined by patch correlation when `refine` asks for it (`roll_deg`: the image
+/// motion's roll); returns how many moved.
+fn refine(
+    a: &GrayImage,
+    b: &GrayImage,
+    matches: &mut PixelMatches,
+    roll_deg: f64,
+    refine: Option<&MatchRefineConfig>,
+) -> Result<usize> {
+    let Some(cfg) = refine else { return Ok(0) };
+    let (a, b) = (GrayF32::from_gray(a), GrayF32::from_gray(b));
+    refine_matches(&a, &b, matches, roll_deg, cfg).map_err(Error::msg)
 }
 
 /// Pixels of a rolled image B (`roll`: B's pixels to the rolled image's) back in B.
@@ -505,7 +533,9 @@ pub fn evaluate(
                     adapted[c].push(repeatability(cam, &a, &b, &ca, &cb, REPEATED_PX)?);
                 }
             }
-            let (m, [ka, kb]) = orb_matches(&ga, seen_b, &cfg.orb)?;
+            let (mut m, [ka, kb]) = orb_matches(&ga, seen_b, &cfg.orb)?;
+            let orb_refine = cfg.refine.as_ref().filter(|_| cfg.refine_orb);
+            orb[c].refined += refine(&ga, seen_b, &mut m, 0.0, orb_refine)?;
             let errs = score(
                 &mut orb[c],
                 &unroll(roll.as_ref(), &m),
@@ -523,8 +553,10 @@ pub fn evaluate(
                 ));
             }
             if let Some(det) = detector {
-                let (m, [fa, fb], turned) = fpfdcnn_pair(det, &ga, seen_b, cfg)?;
-                net[c].derotated += usize::from(turned);
+                let (mut m, [fa, fb], turned) = fpfdcnn_pair(det, &ga, seen_b, cfg)?;
+                net[c].derotated += usize::from(turned.is_some());
+                let motion_roll = turned.unwrap_or(0.0);
+                net[c].refined += refine(&ga, seen_b, &mut m, motion_roll, cfg.refine.as_ref())?;
                 let errs = score(
                     &mut net[c],
                     &unroll(roll.as_ref(), &m),
@@ -658,6 +690,20 @@ pub fn describe_matcher(cfg: &MatchingEvalConfig) -> String {
             cfg.derotation.min_deg
         ));
     }
+    if let Some(r) = &cfg.refine {
+        s.push_str(&format!(
+            "; {} matches refined by patch correlation ({}x{} patch, up to {} px, NCC >= {})",
+            if cfg.refine_orb {
+                "FPFDCNN's and ORB's"
+            } else {
+                "FPFDCNN's"
+            },
+            2 * r.patch_radius + 1,
+            2 * r.patch_radius + 1,
+            r.search_px,
+            r.min_ncc
+        ));
+    }
     s
 }
 
@@ -765,6 +811,23 @@ pub fn markdown(r: &MatchingReport) -> String {
                 turned.join(" / "),
                 r.pairs.len(),
                 if turned.len() > 1 {
+                    "clear / blurred"
+                } else {
+                    "clear"
+                }
+            ));
+        }
+    }
+    for (name, m) in &methods {
+        let counts: Vec<String> = std::iter::once(&m.clean)
+            .chain(m.blurred.as_ref())
+            .map(|c| c.refined_matches.to_string())
+            .collect();
+        if m.clean.refined_matches + m.blurred.as_ref().map_or(0, |b| b.refined_matches) > 0 {
+            s.push_str(&format!(
+                "\n{name}: matches moved by patch correlation {} ({}).\n",
+                counts.join(" / "),
+                if counts.len() > 1 {
                     "clear / blurred"
                 } else {
                     "clear"

@@ -182,9 +182,22 @@ mod tests {
         assert_eq!(m[0].0, Point2::new(40.0, 30.0));
     }
 
+    /// Fine random texture: patches decorrelate when turned.
+    fn speckle(w: usize, h: usize) -> GrayF32 {
+        let mut img = GrayF32::new(w, h);
+        let mut state = 0x2545_f491_u32;
+        for v in img.data.iter_mut() {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            *v = (state % 1000) as f32 / 1000.0;
+        }
+        img.gaussian_blur(1.2)
+    }
+
     #[test]
     fn a_rolled_image_needs_the_roll() {
-        let a = texture(120, 100);
+        let a = speckle(120, 100);
         // b is a turned 20 degrees clockwise on screen about its centre.
         let (sn, cs) = 20f64.to_radians().sin_cos();
         let (cx, cy) = (59.5, 49.5);

@@ -3,7 +3,9 @@
 //! few pixels, then by a parabola to the sub-pixel peak. FPFDCNN places a keypoint from a
 //! probability map predicted per 16x16 cell, a pixel or two from the corner it describes
 //! (README, *Matches refined by patch correlation*); the images themselves say where the
-//! matched corner lies. The first image's point stays where it is.
+//! matched corner lies. The first image's point stays where it is. This is
+//! [`super::patch::search`] with the first patch computed once per match and the second
+//! turned by the image's roll.
 
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};

@@ -10,6 +10,7 @@
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
+use super::patch::parabola_peak;
 use crate::raster::GrayF32;
 
 /// Settings of [`refine_matches`].
@@ -113,20 +114,20 @@ pub fn refine_matches(
         }
         let (bx, by) = (best.0 % side, best.0 / side);
         let mut step = [bx as f64 - s as f64, by as f64 - s as f64];
-        // Sub-pixel: a parabola through the peak and its neighbours, per axis.
-        let peak = |m: f32, c: f32, p: f32| {
-            let d = m - 2.0 * c + p;
-            if d < 0.0 && m > f32::MIN && p > f32::MIN {
-                f64::from(0.5 * (m - p) / d)
+        // Sub-pixel: a parabola through the peak and its neighbours, per axis (not where a
+        // neighbour's patch was flat).
+        let peak = |m: f32, p: f32| {
+            if m > f32::MIN && p > f32::MIN {
+                parabola_peak(m, best.1, p)
             } else {
                 0.0
             }
         };
         if bx > 0 && bx + 1 < side {
-            step[0] += peak(scores[best.0 - 1], best.1, scores[best.0 + 1]);
+            step[0] += peak(scores[best.0 - 1], scores[best.0 + 1]);
         }
         if by > 0 && by + 1 < side {
-            step[1] += peak(scores[best.0 - side], best.1, scores[best.0 + side]);
+            step[1] += peak(scores[best.0 - side], scores[best.0 + side]);
         }
         *pb = Point2::new(pb.x + step[0], pb.y + step[1]);
         moved += 1;

@@ -52,18 +52,21 @@ pub fn search(
         (best.0.0 - guess.0).round() as i32,
         (best.0.1 - guess.1).round() as i32,
     );
-    let refine = |m: f32, c: f32, p: f32| {
-        let d = m - 2.0 * c + p;
-        if d < 0.0 {
-            (0.5 * (m - p) / d) as f64
-        } else {
-            0.0
-        }
-    };
     let mut pos = best.0;
     if bx.abs() < search && by.abs() < search {
-        pos.0 += refine(scores[idx(bx - 1, by)], best.1, scores[idx(bx + 1, by)]);
-        pos.1 += refine(scores[idx(bx, by - 1)], best.1, scores[idx(bx, by + 1)]);
+        pos.0 += parabola_peak(scores[idx(bx - 1, by)], best.1, scores[idx(bx + 1, by)]);
+        pos.1 += parabola_peak(scores[idx(bx, by - 1)], best.1, scores[idx(bx, by + 1)]);
     }
     (pos, best.1)
+}
+
+/// Sub-pixel offset of the peak of the parabola through scores `m`, `c`, `p` at -1, 0, +1
+/// (`c` the largest); 0 when they do not bend down.
+pub fn parabola_peak(m: f32, c: f32, p: f32) -> f64 {
+    let d = m - 2.0 * c + p;
+    if d < 0.0 {
+        f64::from(0.5 * (m - p) / d)
+    } else {
+        0.0
+    }
 }

@@ -355,6 +355,8 @@ fn corpus() -> Vec<Case> {
         case("missing trajectory", "eval", &["ate", "nofile.txt", "est.txt"], &["nofile.txt"])
             .file("est.txt", trajectory),
         case("no keypoints", "eval", &["matching", "--sequence", "seq", "--keypoints", "0"], &["--keypoints", "got 0"]),
+        case("refinement search 99 px", "eval", &["matching", "--sequence", "seq", "--refine-search", "99"], &["--refine-search", "search_px", "got 99"]),
+        case("refinement NCC 3", "eval", &["matching", "--sequence", "seq", "--refine-min-ncc", "3"], &["--refine-min-ncc", "got 3"]),
         // Training configs.
         case("batch size 1e12", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "batch_size"])
             .file("t.toml", &tiny_training_config("batch_size = 2", "batch_size = 1000000000000")),

@@ -141,7 +141,8 @@ struct MatchingArgs {
     #[arg(long, default_value_t = sdf_slam::fpfdcnn::inference::DEFAULT_GRID_SHIFTS)]
     grid_shifts: usize,
     /// Take FPFDCNN's descriptors from the first grid placement only, as before 2026-12-01
-    /// (by default they are averaged over the `--grid-shifts` placements).
+    /// (by default they are averaged over the `--grid-shifts` placements). One pass is
+    /// unaffected: `--descriptor-spread 0` gives its earlier descriptors.
     #[arg(long)]
     no_descriptor_averaging: bool,
     /// FPFDCNN's matches as matched: no refinement of the second image's point by patch
@@ -316,6 +317,29 @@ fn matching(a: MatchingArgs) -> Result<()> {
         ad.validate()
             .map_err(|m| anyhow::anyhow!("--adapted-harris: {m}"))?;
     }
+    let refine = sdf_slam::features::match_refine::MatchRefineConfig {
+        patch_radius: a.refine_patch_radius,
+        search_px: a.refine_search,
+        min_ncc: a.refine_min_ncc,
+    };
+    let refine = if a.no_match_refinement {
+        anyhow::ensure!(!a.refine_orb, "--refine-orb needs match refinement on");
+        None
+    } else {
+        refine.validate().map_err(|m| {
+            // The message names the field; say which flag set it.
+            let flag = [
+                ("patch_radius", "--refine-patch-radius"),
+                ("search_px", "--refine-search"),
+                ("min_ncc", "--refine-min-ncc"),
+            ]
+            .into_iter()
+            .find(|(field, _)| m.starts_with(field))
+            .map_or("--refine-*", |(_, flag)| flag);
+            anyhow::anyhow!("{flag}: {m}")
+        })?;
+        Some(refine)
+    };
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::load(&a.camera)?;
     let weights = match (&a.fpfdcnn, a.orb_only) {
@@ -363,21 +387,9 @@ fn matching(a: MatchingArgs) -> Result<()> {
         derotation: sdf_slam::fpfdcnn::derotation::DerotationConfig { min_deg: derotate },
         adaptation,
         refine_orb: a.refine_orb,
+        refine,
         ..Default::default()
     };
-    let refine = sdf_slam::features::match_refine::MatchRefineConfig {
-        patch_radius: a.refine_patch_radius,
-        search_px: a.refine_search,
-        min_ncc: a.refine_min_ncc,
-    };
-    refine
-        .validate()
-        .map_err(|m| anyhow::anyhow!("--refine-*: {m}"))?;
-    cfg.refine = Some(refine);
-    if a.no_match_refinement {
-        anyhow::ensure!(!a.refine_orb, "--refine-orb needs match refinement on");
-        cfg.refine = None;
-    }
     cfg.orb.n_features = a.keypoints;
     cfg.orb.n_levels = a.orb_levels;
     cfg.orb.validate()?;

@@ -61,12 +61,32 @@ pub fn search(
 }
 
 /// Sub-pixel offset of the peak of the parabola through scores `m`, `c`, `p` at -1, 0, +1
-/// (`c` the largest); 0 when they do not bend down.
+/// (`c` the largest, which keeps it within ±0.5; clamped there otherwise); 0 when they do
+/// not bend down.
 pub fn parabola_peak(m: f32, c: f32, p: f32) -> f64 {
     let d = m - 2.0 * c + p;
     if d < 0.0 {
-        f64::from(0.5 * (m - p) / d)
+        f64::from(0.5 * (m - p) / d).clamp(-0.5, 0.5)
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parabola_peak;
+
+    #[test]
+    fn parabola_peak_finds_the_vertex_and_stays_within_half_a_pixel() {
+        // y = 2 - (x - 0.25)² sampled at -1, 0, 1: the vertex at 0.25.
+        let y = |x: f32| 2.0 - (x - 0.25) * (x - 0.25);
+        assert!((parabola_peak(y(-1.0), y(0.0), y(1.0)) - 0.25).abs() < 1e-6);
+        assert_eq!(parabola_peak(1.0, 2.0, 1.0), 0.0);
+        // Flat or bending up: no step.
+        assert_eq!(parabola_peak(1.0, 1.0, 1.0), 0.0);
+        assert_eq!(parabola_peak(2.0, 1.0, 2.0), 0.0);
+        // The middle score not the largest: clamped.
+        assert_eq!(parabola_peak(0.5, 0.4, 0.2), -0.5);
+        assert_eq!(parabola_peak(0.2, 0.4, 0.5), 0.5);
     }
 }

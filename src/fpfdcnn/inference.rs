@@ -59,8 +59,9 @@ pub struct DetectorConfig {
     /// keypoint and this many pixels away along both diagonals (0: the keypoint's sample
     /// alone). The map is 16 times coarser than the image, and one placement's samples
     /// follow its grid; spreading them is what averaging over placements does at no extra
-    /// network pass ([`DEFAULT_DESCRIPTOR_SPREAD`]). Several placements ignore it: their
-    /// average already spreads the descriptors.
+    /// network pass ([`DEFAULT_DESCRIPTOR_SPREAD`]). Several placements ignore it (their
+    /// average spreads the descriptors when [`Self::average_descriptors`] is on; without it
+    /// they are the first placement's samples); `average_descriptors` does not affect it.
     pub descriptor_spread: usize,
     /// Detect on this many levels of an image pyramid (1: the image as it is), each level
     /// [`Self::level_factor`] smaller than the one before, keypoints reported in the

@@ -80,24 +80,51 @@ pub(super) fn gaussian_blur_7x7(img: &GrayImage) -> GrayImage {
     let s: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= s);
     let d = img.as_raw();
+    // Each sum is taken tap by tap in the same order everywhere (the interior's loops
+    // vectorise across pixels), so the result does not depend on where a pixel lies.
+    let tap_sum = |v: [f32; 7]| (1..7).fold(k[0] * v[0], |s, j| s + k[j] * v[j]);
     let mut tmp = vec![0f32; w * h];
-    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            *o = (0..7)
-                .map(|j| k[j] * d[y * w + reflect101(x as isize + j as isize - 3, w)] as f32)
-                .sum();
-        }
-    });
+    tmp.par_chunks_mut(w)
+        .zip(d.par_chunks(w))
+        .for_each(|(row, src)| {
+            let at = |x: usize, j: usize| src[reflect101(x as isize + j as isize - 3, w)] as f32;
+            for (x, o) in row.iter_mut().enumerate() {
+                if x < 3 || x + 3 >= w {
+                    *o = tap_sum(std::array::from_fn(|j| at(x, j)));
+                }
+            }
+            if w > 6 {
+                let n = w - 6;
+                let taps = (src[..n].iter().zip(&src[1..]).zip(&src[2..]).zip(&src[3..]))
+                    .zip(src[4..].iter().zip(&src[5..]).zip(&src[6..]));
+                for (o, ((((&a, &b), &c), &d), ((&e, &f), &g))) in
+                    row[3..w - 3].iter_mut().zip(taps)
+                {
+                    *o = tap_sum([a, b, c, d, e, f, g].map(f32::from));
+                }
+            }
+        });
     let mut out = vec![0u8; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let v: f32 = (0..7)
-                .map(|j| k[j] * tmp[reflect101(y as isize + j as isize - 3, h) * w + x])
-                .sum();
-            *o = v.round().clamp(0.0, 255.0) as u8;
+        let rows: [&[f32]; 7] = std::array::from_fn(|j| {
+            let yy = reflect101(y as isize + j as isize - 3, h);
+            &tmp[yy * w..(yy + 1) * w]
+        });
+        let [r0, r1, r2, r3, r4, r5, r6] = rows;
+        let taps = r0.iter().zip(r1).zip(r2).zip(r3).zip(r4).zip(r5).zip(r6);
+        for (o, ((((((&a, &b), &c), &d), &e), &f), &g)) in row.iter_mut().zip(taps) {
+            *o = super::round_u8(tap_sum([a, b, c, d, e, f, g]));
         }
     });
     GrayImage::from_raw(w as u32, h as u32, out).unwrap_or_default()
+}
+
+/// `x.round_ties_even()` for `|x| < 2^22` without a libm call: adding 1.5 * 2^23 leaves no
+/// bits below the unit, so the sum is rounded to an integer, ties to even (the added
+/// constant is even), and taking the constant away again is exact.
+fn round_ties_even_small(x: f32) -> i32 {
+    const MAGIC: f32 = 12_582_912.0;
+    ((x + MAGIC) - MAGIC) as i32
 }
 
 /// Steered BRIEF descriptor at integer level position `(x, y)` with orientation
@@ -108,8 +135,8 @@ pub(super) fn steered_brief(smoothed: &GrayImage, x: i32, y: i32, angle: f32) ->
     let (b, a) = angle.to_radians().sin_cos();
     let value = |px: i8, py: i8| {
         let (px, py) = (px as f32, py as f32);
-        let rx = (px * a - py * b).round_ties_even() as i32;
-        let ry = (px * b + py * a).round_ties_even() as i32;
+        let rx = round_ties_even_small(px * a - py * b);
+        let ry = round_ties_even_small(px * b + py * a);
         d[((y + ry) * w + x + rx) as usize]
     };
     let mut desc = [0u8; 32];
@@ -226,6 +253,84 @@ mod tests {
     use super::super::{OrbConfig, detect_and_compute};
     use crate::dataset::TumSequence;
     use crate::features::bf_matcher::bf_match;
+
+    /// The blur as first written: every tap through the reflected index, `f32::round`.
+    fn reference_blur(img: &image::GrayImage) -> Vec<u8> {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let mut k = [0f32; 7];
+        for (i, v) in k.iter_mut().enumerate() {
+            let d = i as f32 - 3.0;
+            *v = (-d * d / 8.0).exp();
+        }
+        let s: f32 = k.iter().sum();
+        k.iter_mut().for_each(|v| *v /= s);
+        let d = img.as_raw();
+        let r = |i: isize, n: usize| super::reflect101(i, n);
+        let tmp: Vec<f32> = (0..w * h)
+            .map(|p| {
+                let (x, y) = (p % w, p / w);
+                (0..7)
+                    .map(|j| k[j] * d[y * w + r(x as isize + j as isize - 3, w)] as f32)
+                    .sum()
+            })
+            .collect();
+        (0..w * h)
+            .map(|p| {
+                let (x, y) = (p % w, p / w);
+                let v: f32 = (0..7)
+                    .map(|j| k[j] * tmp[r(y as isize + j as isize - 3, h) * w + x])
+                    .sum();
+                v.round().clamp(0.0, 255.0) as u8
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_blur_equals_the_plain_one_to_the_bit() {
+        let mut state = 0x9e37_79b9_u32;
+        for (w, h) in [(37, 23), (7, 9), (5, 4), (1, 1), (64, 48)] {
+            let img = image::GrayImage::from_fn(w, h, |x, y| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                // Noise on a ramp: every grey level, and sums landing near halves.
+                image::Luma([((state % 97) + 3 * x + 2 * y).min(255) as u8])
+            });
+            assert_eq!(
+                super::gaussian_blur_7x7(&img).into_raw(),
+                reference_blur(&img),
+                "{w}x{h}"
+            );
+        }
+    }
+
+    #[test]
+    fn rounding_without_libm_agrees_with_round() {
+        assert_eq!(super::round_ties_even_small(2.5), 2);
+        assert_eq!(super::round_ties_even_small(-2.5), -2);
+        assert_eq!(super::round_ties_even_small(3.5), 4);
+        for i in -40_000..40_000 {
+            let x = i as f32 * 0.000_75 + 0.25;
+            assert_eq!(
+                super::round_ties_even_small(x),
+                x.round_ties_even() as i32,
+                "{x}"
+            );
+        }
+        for v in [
+            -3.0f32, -0.5, -0.0, 0.0, 0.49999997, 0.5, 1.5, 254.49998, 254.5, 255.0, 300.0,
+        ]
+        .into_iter()
+        .chain((0..300_000).map(|i| i as f32 * 0.000_9 - 10.0))
+        {
+            assert_eq!(
+                super::super::round_u8(v),
+                v.round().clamp(0.0, 255.0) as u8,
+                "{v}"
+            );
+        }
+        assert_eq!(super::super::round_u8(f32::NAN), 0);
+    }
 
     #[test]
     fn orientation_makes_descriptors_survive_a_90_degree_rotation() {

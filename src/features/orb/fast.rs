@@ -33,6 +33,23 @@ const CIRCLE: [(i32, i32); 16] = [
     (-1, -3),
 ];
 
+/// Whether the 16-bit circle mask `m` has 9 contiguous set bits, around the circle.
+fn has_arc_of_9(m: u32) -> bool {
+    let m = m | (m << 16);
+    (1..9).fold(m, |run, i| run & (m >> i)) & 0xffff != 0
+}
+
+/// The necessary condition on the compass pixels (circle pixels 0, 4, 8, 12, minus the
+/// centre): any arc of 9 holds two neighbouring ones, so two neighbours must both be
+/// brighter than `t` or both darker than `-t`.
+#[inline]
+fn compass_test(compass: [i16; 4], t: i16) -> bool {
+    let bright = compass.map(|d| u8::from(d > t));
+    let dark = compass.map(|d| u8::from(d < -t));
+    let pairs = |m: [u8; 4]| (m[0] & m[1]) | (m[1] & m[2]) | (m[2] & m[3]) | (m[3] & m[0]);
+    pairs(bright) | pairs(dark) != 0
+}
+
 /// FAST-9 score of pixel `(x, y)` (at least 3 px from the border): 0 when it is not a
 /// corner (no arc of 9 contiguous circle pixels all brighter than `centre + t` or all
 /// darker than `centre - t`), else the largest such `t`.
@@ -42,16 +59,22 @@ fn fast_score(data: &[u8], w: usize, x: usize, y: usize, t: i16) -> u8 {
         let (dx, dy) = CIRCLE[k];
         data[(y as i32 + dy) as usize * w + (x as i32 + dx) as usize] as i16 - c
     };
-    // Any arc of 9 contains at least two of the four compass pixels.
-    let compass = [px(0), px(4), px(8), px(12)];
-    let bright = compass.iter().filter(|&&d| d > t).count();
-    let dark = compass.iter().filter(|&&d| d < -t).count();
-    if bright < 2 && dark < 2 {
+    if !compass_test([px(0), px(4), px(8), px(12)], t) {
         return 0;
     }
     let mut d = [0i16; 16];
     for (k, v) in d.iter_mut().enumerate() {
         *v = px(k);
+    }
+    // A corner at all (the score below exceeds `t` exactly then): an arc of 9 brighter
+    // or darker circle pixels, found on bit masks.
+    let (mut bright, mut dark) = (0u32, 0u32);
+    for (k, &v) in d.iter().enumerate() {
+        bright |= u32::from(v > t) << k;
+        dark |= u32::from(v < -t) << k;
+    }
+    if !has_arc_of_9(bright) && !has_arc_of_9(dark) {
+        return 0;
     }
     let (mut best_bright, mut best_dark) = (i16::MIN, i16::MIN);
     for start in 0..16 {
@@ -83,8 +106,27 @@ pub fn fast_corners(img: &GrayImage, threshold: u8) -> Vec<FastCorner> {
         .enumerate()
         .for_each(|(r, row)| {
             let y = r + 3;
-            for (x, s) in row.iter_mut().enumerate().take(w - 3).skip(3) {
-                *s = fast_score(data, w, x, y, t);
+            let (up, mid, down) = (
+                &data[(y - 3) * w..(y - 2) * w],
+                &data[y * w..(y + 1) * w],
+                &data[(y + 3) * w..(y + 4) * w],
+            );
+            // `fast_score`'s first test for the whole row at once (branch-free, so it
+            // vectorises), read straight from the rows: most pixels stop here.
+            let n = w - 6;
+            let candidate: Vec<bool> = mid[3..w - 3]
+                .iter()
+                .zip(&up[3..w - 3])
+                .zip(&mid[6..])
+                .zip(&down[3..w - 3])
+                .zip(&mid[..n])
+                .map(|((((&c, &n0), &e), &s0), &w0)| {
+                    let c = c as i16;
+                    compass_test([n0, e, s0, w0].map(|v| v as i16 - c), t)
+                })
+                .collect();
+            for (i, _) in candidate.iter().enumerate().filter(|(_, c)| **c) {
+                row[i + 3] = fast_score(data, w, i + 3, y, t);
             }
         });
     let mut out = Vec::new();
@@ -115,6 +157,68 @@ pub fn fast_corners(img: &GrayImage, threshold: u8) -> Vec<FastCorner> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// FAST as first written: every pixel's full arc scan, then the suppression.
+    fn reference_corners(img: &GrayImage, t: u8) -> Vec<FastCorner> {
+        let (w, h) = (img.width() as i32, img.height() as i32);
+        let score = |x: i32, y: i32| -> u8 {
+            let p = |x: i32, y: i32| img.get_pixel(x as u32, y as u32)[0] as i16;
+            let d: Vec<i16> = CIRCLE
+                .iter()
+                .map(|&(dx, dy)| p(x + dx, y + dy) - p(x, y))
+                .collect();
+            let best = (0..16)
+                .map(|s| {
+                    let arc = (s..s + 9).map(|k| d[k % 16]);
+                    let lo = arc.clone().min().unwrap();
+                    let hi = arc.max().unwrap();
+                    lo.max(-hi)
+                })
+                .max()
+                .unwrap();
+            if best > t as i16 { (best - 1) as u8 } else { 0 }
+        };
+        let s = |x: i32, y: i32| {
+            if x < 3 || y < 3 || x >= w - 3 || y >= h - 3 {
+                0
+            } else {
+                score(x, y)
+            }
+        };
+        let mut out = Vec::new();
+        for y in 3..h - 3 {
+            for x in 3..w - 3 {
+                let v = s(x, y);
+                let max = (-1..=1)
+                    .all(|dy| (-1..=1).all(|dx| (dx == 0 && dy == 0) || v > s(x + dx, y + dy)));
+                if v > 0 && max {
+                    out.push(FastCorner {
+                        x: x as u32,
+                        y: y as u32,
+                        score: v,
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_early_tests_reject_no_corner() {
+        let mut state = 0x2545_f491_u32;
+        for (w, h, t) in [(48, 40, 20), (33, 17, 7), (7, 7, 1), (64, 48, 40)] {
+            let img = GrayImage::from_fn(w, h, |x, y| {
+                state ^= state << 13;
+                state ^= state >> 17;
+                state ^= state << 5;
+                // Blocks of noise: corners, edges and flat patches.
+                image::Luma([((state % 160) + 40 * ((x / 5 + y / 7) % 3)) as u8])
+            });
+            let found = fast_corners(&img, t);
+            assert_eq!(found, reference_corners(&img, t), "{w}x{h}, t {t}");
+            assert!(w < 10 || !found.is_empty());
+        }
+    }
 
     #[test]
     fn fast_finds_the_corners_of_a_bright_square() {

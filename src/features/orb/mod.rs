@@ -145,6 +145,14 @@ impl OrbFeatures {
 const HARRIS_BLOCK: i32 = 7;
 const HARRIS_K: f32 = 0.04;
 
+/// `v.round().clamp(0.0, 255.0) as u8` without a libm call or a branch (so that loops over
+/// it vectorise): the integer part, plus one when the fraction (exact: `v - floor(v)` for
+/// `v` in `[0, 256)`) is at least a half. Negative values and NaN give 0.
+pub(super) fn round_u8(v: f32) -> u8 {
+    let whole = (v as u32).min(255);
+    (whole + u32::from(v - whole as f32 >= 0.5)).min(255) as u8
+}
+
 /// Keeps the `n` best items by `key` and every item tied with the n-th
 /// (OpenCV's `KeyPointsFilter::retainBest`), sorted best first.
 fn retain_best<T>(items: &mut Vec<T>, n: usize, key: impl Fn(&T) -> f32) {

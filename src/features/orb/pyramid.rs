@@ -76,7 +76,7 @@ fn resize_bilinear(src: &GrayImage, w: usize, h: usize) -> GrayImage {
             let g = |xx: usize, yy: usize| d[yy * sw + xx] as f32;
             let top = g(x0, y0) * (1.0 - fx) + g(x1, y0) * fx;
             let bottom = g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx;
-            *o = (top * (1.0 - fy) + bottom * fy).round().clamp(0.0, 255.0) as u8;
+            *o = super::round_u8(top * (1.0 - fy) + bottom * fy);
         }
     });
     GrayImage::from_raw(w as u32, h as u32, out).unwrap_or_default()

@@ -69,9 +69,8 @@ fn reflect101(i: isize, n: usize) -> usize {
     i as usize
 }
 
-/// 7x7 Gaussian blur with sigma 2 and reflected borders.
-pub(super) fn gaussian_blur_7x7(img: &GrayImage) -> GrayImage {
-    let (w, h) = (img.width() as usize, img.height() as usize);
+/// The normalised taps of a 7-tap Gaussian with sigma 2.
+fn blur_kernel() -> [f32; 7] {
     let mut k = [0f32; 7];
     for (i, v) in k.iter_mut().enumerate() {
         let d = i as f32 - 3.0;
@@ -79,6 +78,13 @@ pub(super) fn gaussian_blur_7x7(img: &GrayImage) -> GrayImage {
     }
     let s: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= s);
+    k
+}
+
+/// 7x7 Gaussian blur with sigma 2 and reflected borders.
+pub(super) fn gaussian_blur_7x7(img: &GrayImage) -> GrayImage {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let k = blur_kernel();
     let d = img.as_raw();
     // Each sum is taken tap by tap in the same order everywhere (the interior's loops
     // vectorise across pixels), so the result does not depend on where a pixel lies.
@@ -254,16 +260,11 @@ mod tests {
     use crate::dataset::TumSequence;
     use crate::features::bf_matcher::bf_match;
 
-    /// The blur as first written: every tap through the reflected index, `f32::round`.
+    /// The blur as first written (the same taps): every tap through the reflected index,
+    /// `f32::round`.
     fn reference_blur(img: &image::GrayImage) -> Vec<u8> {
         let (w, h) = (img.width() as usize, img.height() as usize);
-        let mut k = [0f32; 7];
-        for (i, v) in k.iter_mut().enumerate() {
-            let d = i as f32 - 3.0;
-            *v = (-d * d / 8.0).exp();
-        }
-        let s: f32 = k.iter().sum();
-        k.iter_mut().for_each(|v| *v /= s);
+        let k = super::blur_kernel();
         let d = img.as_raw();
         let r = |i: isize, n: usize| super::reflect101(i, n);
         let tmp: Vec<f32> = (0..w * h)

@@ -94,10 +94,10 @@ pub(super) fn gaussian_blur_7x7(img: &GrayImage) -> GrayImage {
         .zip(d.par_chunks(w))
         .for_each(|(row, src)| {
             let at = |x: usize, j: usize| src[reflect101(x as isize + j as isize - 3, w)] as f32;
-            for (x, o) in row.iter_mut().enumerate() {
-                if x < 3 || x + 3 >= w {
-                    *o = tap_sum(std::array::from_fn(|j| at(x, j)));
-                }
+            // The three pixels at each end (every pixel of a row narrower than 7).
+            let left = w.min(3);
+            for x in (0..left).chain(w.saturating_sub(3).max(left)..w) {
+                row[x] = tap_sum(std::array::from_fn(|j| at(x, j)));
             }
             if w > 6 {
                 let n = w - 6;

@@ -50,7 +50,8 @@ fn compass_test(compass: [i16; 4], t: i16) -> bool {
     pairs(bright) | pairs(dark) != 0
 }
 
-/// FAST-9 score of pixel `(x, y)` (at least 3 px from the border): 0 when it is not a
+/// FAST-9 score of pixel `(x, y)` (at least 3 px from the border; [`fast_corners`] asks
+/// only for pixels that pass [`compass_test`]): 0 when it is not a
 /// corner (no arc of 9 contiguous circle pixels all brighter than `centre + t` or all
 /// darker than `centre - t`), else the largest such `t`.
 fn fast_score(data: &[u8], w: usize, x: usize, y: usize, t: i16) -> u8 {
@@ -59,9 +60,6 @@ fn fast_score(data: &[u8], w: usize, x: usize, y: usize, t: i16) -> u8 {
         let (dx, dy) = CIRCLE[k];
         data[(y as i32 + dy) as usize * w + (x as i32 + dx) as usize] as i16 - c
     };
-    if !compass_test([px(0), px(4), px(8), px(12)], t) {
-        return 0;
-    }
     let mut d = [0i16; 16];
     for (k, v) in d.iter_mut().enumerate() {
         *v = px(k);
@@ -111,8 +109,8 @@ pub fn fast_corners(img: &GrayImage, threshold: u8) -> Vec<FastCorner> {
                 &data[y * w..(y + 1) * w],
                 &data[(y + 3) * w..(y + 4) * w],
             );
-            // `fast_score`'s first test for the whole row at once (branch-free, so it
-            // vectorises), read straight from the rows: most pixels stop here.
+            // The compass test for the whole row at once (branch-free, so it vectorises),
+            // read straight from the rows: most pixels stop here, the rest are scored.
             let n = w - 6;
             let candidate: Vec<bool> = mid[3..w - 3]
                 .iter()

@@ -110,21 +110,18 @@ pub fn fast_corners(img: &GrayImage, threshold: u8) -> Vec<FastCorner> {
                 &data[(y + 3) * w..(y + 4) * w],
             );
             // The compass test for the whole row at once (branch-free, so it vectorises),
-            // read straight from the rows: most pixels stop here, the rest are scored.
+            // read straight from the rows and marked in the row itself: most pixels stop
+            // here, the marked ones are scored.
             let n = w - 6;
-            let candidate: Vec<bool> = mid[3..w - 3]
-                .iter()
-                .zip(&up[3..w - 3])
-                .zip(&mid[6..])
-                .zip(&down[3..w - 3])
-                .zip(&mid[..n])
-                .map(|((((&c, &n0), &e), &s0), &w0)| {
-                    let c = c as i16;
-                    compass_test([n0, e, s0, w0].map(|v| v as i16 - c), t)
-                })
-                .collect();
-            for (i, _) in candidate.iter().enumerate().filter(|(_, c)| **c) {
-                row[i + 3] = fast_score(data, w, i + 3, y, t);
+            let taps = (up[3..w - 3].iter().zip(&mid[6..]))
+                .zip(down[3..w - 3].iter().zip(&mid[..n]))
+                .zip(&mid[3..w - 3]);
+            for (mark, (((&n0, &e), (&s0, &w0)), &c)) in row[3..w - 3].iter_mut().zip(taps) {
+                let c = c as i16;
+                *mark = u8::from(compass_test([n0, e, s0, w0].map(|v| v as i16 - c), t));
+            }
+            for (x, s) in row.iter_mut().enumerate().filter(|(_, s)| **s != 0) {
+                *s = fast_score(data, w, x, y, t);
             }
         });
     let mut out = Vec::new();

@@ -766,7 +766,8 @@ mod tests {
             grid_shifts,
             descriptor_spread,
             threshold: 0.0,
-            top_k: 12,
+            // Every local maximum (the weights are random): points reach the border band.
+            top_k: 200,
             border: 2,
             ..DetectorConfig::default()
         };

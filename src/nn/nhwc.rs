@@ -186,7 +186,7 @@ simd_fn! {
 
 simd_fn! {
     /// `out[i] = a0·x0[i] + a1·x1[i]`.
-    fn blend(out: &mut [f32], x0: &[f32], a0: f32, x1: &[f32], a1: f32) {
+    pub(crate) fn blend(out: &mut [f32], x0: &[f32], a0: f32, x1: &[f32], a1: f32) {
         for ((o, &p), &q) in out.iter_mut().zip(x0).zip(x1) {
             *o = a0 * p + a1 * q;
         }

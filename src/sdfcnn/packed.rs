@@ -281,23 +281,53 @@ impl PackedSdfcnn {
 
 /// For every pixel of an `[h, w]` image: the channel with the largest value in the bilinear
 /// upsampling of `logits` (the first on ties, as Burn's argmax), without storing the
-/// upsampled maps.
+/// upsampled maps. Columns first, then rows, as [`nhwc::resize_bilinear`]: each band of
+/// [`ARGMAX_BAND`] output rows blends the columns of the logit rows it reads once, then each
+/// pixel's two rows.
 fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
     use crate::nn::resize::taps;
     let c = logits.c;
     let tx: Vec<_> = (0..w).map(|x| taps(x, logits.w, w)).collect();
+    let row = w * c;
     let mut labels = vec![0u8; h * w];
-    labels.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
-        let ty = taps(y, logits.h, h);
-        let mut r0 = vec![0.0f32; c];
-        let mut r1 = vec![0.0f32; c];
-        let mut v = vec![0.0f32; c];
-        for (label, t) in out.iter_mut().zip(&tx) {
-            // Columns first, then rows (as `nhwc::resize_bilinear`).
-            for i in 0..c {
-                r0[i] = t.w0 * logits.pixel(ty.i0, t.i0)[i] + t.w1 * logits.pixel(ty.i0, t.i1)[i];
-                r1[i] = t.w0 * logits.pixel(ty.i1, t.i0)[i] + t.w1 * logits.pixel(ty.i1, t.i1)[i];
-                v[i] = ty.w0 * r0[i] + ty.w1 * r1[i];
+    labels
+        .par_chunks_mut(ARGMAX_BAND * w)
+        .enumerate()
+        .for_each(|(b, band)| {
+            let y0 = b * ARGMAX_BAND;
+            let ty: Vec<_> = (y0..y0 + band.len() / w)
+                .map(|y| taps(y, logits.h, h))
+                .collect();
+            // Logit rows lo..=hi, their columns blended to the output's width.
+            let (lo, hi) = (ty[0].i0, ty[ty.len() - 1].i1);
+            let mut cols = vec![0.0f32; (hi - lo + 1) * row];
+            for (k, out) in cols.chunks_exact_mut(row).enumerate() {
+                for (o, t) in out.chunks_exact_mut(c).zip(&tx) {
+                    let y = lo + k;
+                    nhwc::blend(o, logits.pixel(y, t.i0), t.w0, logits.pixel(y, t.i1), t.w1);
+                }
+            }
+            let mut v = vec![0.0f32; c];
+            for (out, t) in band.chunks_mut(w).zip(&ty) {
+                let r0 = &cols[(t.i0 - lo) * row..][..row];
+                let r1 = &cols[(t.i1 - lo) * row..][..row];
+                argmax_row(out, r0, t.w0, r1, t.w1, &mut v);
+            }
+        });
+    labels
+}
+
+/// Output rows a task of [`upsampled_argmax`] labels.
+const ARGMAX_BAND: usize = 16;
+
+nhwc::simd_fn! {
+    /// One row of labels: pixel `x`'s is the first channel with the largest
+    /// `a0·r0[x·c + i] + a1·r1[x·c + i]` (`c` = `v.len()` channels; `v` is scratch).
+    fn argmax_row(out: &mut [u8], r0: &[f32], a0: f32, r1: &[f32], a1: f32, v: &mut [f32]) {
+        let c = v.len();
+        for ((label, p), q) in out.iter_mut().zip(r0.chunks_exact(c)).zip(r1.chunks_exact(c)) {
+            for ((o, &p), &q) in v.iter_mut().zip(p).zip(q) {
+                *o = a0 * p + a1 * q;
             }
             let mut best = 0;
             for i in 1..c {
@@ -307,8 +337,7 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
             }
             *label = best.min(254) as u8;
         }
-    });
-    labels
+    }
 }
 
 #[cfg(test)]
@@ -413,6 +442,67 @@ mod tests {
             assert!(
                 compared > plane / 2,
                 "{compared} of {plane} pixels compared"
+            );
+        }
+    }
+
+    /// The upsampled argmax computed the plain way: every pixel's column blends, then its
+    /// row blend, then the first largest channel.
+    fn argmax_reference(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
+        use crate::nn::resize::taps;
+        let c = logits.c;
+        let mut labels = vec![0u8; h * w];
+        for y in 0..h {
+            let ty = taps(y, logits.h, h);
+            for x in 0..w {
+                let t = taps(x, logits.w, w);
+                let v: Vec<f32> = (0..c)
+                    .map(|i| {
+                        let r0 = t.w0 * logits.pixel(ty.i0, t.i0)[i]
+                            + t.w1 * logits.pixel(ty.i0, t.i1)[i];
+                        let r1 = t.w0 * logits.pixel(ty.i1, t.i0)[i]
+                            + t.w1 * logits.pixel(ty.i1, t.i1)[i];
+                        ty.w0 * r0 + ty.w1 * r1
+                    })
+                    .collect();
+                let best = (1..c).fold(0, |b, i| if v[i] > v[b] { i } else { b });
+                labels[y * w + x] = best.min(254) as u8;
+            }
+        }
+        labels
+    }
+
+    #[test]
+    fn the_banded_argmax_equals_the_plain_one_bit_for_bit() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        // Sizes off the band and scale grids; logits on a coarse grid of values make ties.
+        for ([lh, lw, c], [h, w], levels) in [
+            ([30, 40, 40], [120, 160], 0),
+            ([7, 5, 40], [29, 21], 4),
+            ([3, 4, 3], [37, 11], 2),
+            ([1, 1, 2], [5, 3], 0),
+        ] {
+            let data: Vec<f32> = (0..lh * lw * c)
+                .map(|_| {
+                    let v: f32 = rng.random_range(-4.0..4.0);
+                    if levels > 0 {
+                        (v * levels as f32).round() / levels as f32
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            let logits = NhwcView {
+                h: lh,
+                w: lw,
+                c,
+                stride: lw,
+                data: &data,
+            };
+            assert_eq!(
+                upsampled_argmax(&logits, [h, w]),
+                argmax_reference(&logits, [h, w]),
+                "{lh}x{lw}x{c} -> {h}x{w}"
             );
         }
     }

@@ -290,6 +290,9 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
     let tx: Vec<_> = (0..w).map(|x| taps(x, logits.w, w)).collect();
     let row = w * c;
     let mut labels = vec![0u8; h * w];
+    if row == 0 || h == 0 || logits.h == 0 || logits.w == 0 {
+        return labels;
+    }
     labels
         .par_chunks_mut(ARGMAX_BAND * w)
         .enumerate()

@@ -303,25 +303,35 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
                 .collect();
             // Logit rows lo..=hi, their columns blended to the output's width.
             let (lo, hi) = (ty[0].i0, ty[ty.len() - 1].i1);
-            let mut cols = vec![0.0f32; (hi - lo + 1) * row];
-            for (k, out) in cols.chunks_exact_mut(row).enumerate() {
-                for (o, t) in out.chunks_exact_mut(c).zip(&tx) {
-                    let y = lo + k;
-                    nhwc::blend(o, logits.pixel(y, t.i0), t.w0, logits.pixel(y, t.i1), t.w1);
+            ARGMAX_SCRATCH.with(|cell| {
+                let (cols, v) = &mut *cell.borrow_mut();
+                // Every value is written before it is read: no zeroing on reuse.
+                cols.resize((hi - lo + 1) * row, 0.0);
+                v.resize(c, 0.0);
+                for (k, out) in cols.chunks_exact_mut(row).enumerate() {
+                    for (o, t) in out.chunks_exact_mut(c).zip(&tx) {
+                        let y = lo + k;
+                        nhwc::blend(o, logits.pixel(y, t.i0), t.w0, logits.pixel(y, t.i1), t.w1);
+                    }
                 }
-            }
-            let mut v = vec![0.0f32; c];
-            for (out, t) in band.chunks_mut(w).zip(&ty) {
-                let r0 = &cols[(t.i0 - lo) * row..][..row];
-                let r1 = &cols[(t.i1 - lo) * row..][..row];
-                argmax_row(out, r0, t.w0, r1, t.w1, &mut v);
-            }
+                for (out, t) in band.chunks_mut(w).zip(&ty) {
+                    let r0 = &cols[(t.i0 - lo) * row..][..row];
+                    let r1 = &cols[(t.i1 - lo) * row..][..row];
+                    argmax_row(out, r0, t.w0, r1, t.w1, v);
+                }
+            })
         });
     labels
 }
 
 /// Output rows a task of [`upsampled_argmax`] labels.
 const ARGMAX_BAND: usize = 16;
+
+thread_local! {
+    /// A band's column-blended logit rows and one pixel's blend, kept per thread.
+    static ARGMAX_SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+}
 
 nhwc::simd_fn! {
     /// One row of labels: pixel `x`'s is the first channel with the largest

@@ -7,6 +7,7 @@ pub mod backend;
 pub mod batch_norm_kernel;
 pub mod conv;
 pub mod depthwise_kernel;
+pub mod elu_kernel;
 pub mod init;
 pub mod nhwc;
 pub mod packed_conv;

@@ -37,7 +37,7 @@ use burn::prelude::*;
 use burn::tensor::ops::{ConvOptions, PadMode};
 
 use super::backend::is_cpu;
-use super::depthwise_kernel;
+use super::{dense_conv_kernel, depthwise_kernel};
 
 /// Which implementation [`conv2d`] and [`crate::nn::max_pool2d`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -45,14 +45,16 @@ pub enum OpImpl {
     /// Per op and device, whichever measured faster (`examples/conv_speed.rs`, 2-core VM):
     ///
     /// * ndarray with autodiff (training): the composite ops — Burn's convolution backward
-    ///   there is 10–600× slower — except depthwise convolutions (below).
+    ///   there is 10–600× slower — except depthwise and dense convolutions (below).
     /// * ndarray without autodiff (inference): the composite ops except 3×3 depthwise
     ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
     /// * flex: only 1×1 stride-1 convolutions (a plain matrix product, 3–5× faster forward +
     ///   backward on flex too) and, without autodiff, the max pool (2×).
     /// * stride-1 max pools with autodiff on either CPU backend: [`crate::nn::pool_kernel`]
     ///   ([`pool_path`]); depthwise convolutions with autodiff on either CPU backend:
-    ///   [`crate::nn::depthwise_kernel`] ([`depthwise_uses_kernel`]).
+    ///   [`crate::nn::depthwise_kernel`], and dense ones (groups 1, dilation 1) with at least
+    ///   as many output as input channels: [`crate::nn::dense_conv_kernel`]
+    ///   ([`conv_uses_kernel`]; FPFDCNN's train step 0.5× on ndarray, 0.8-0.95× on flex).
     /// * the GPU backends (wgpu, cuda): 1×1 convolutions as matrix products too, Burn's own
     ///   kernels otherwise. Burn 0.22.1's wgpu 1×1 convolution returns a tensor that later
     ///   in-place element-wise ops read wrongly (SDFCNN's one-channel depth head gave an L1
@@ -166,7 +168,10 @@ pub fn pool_path(device: &Device) -> PoolPath {
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let device = x.device();
     let kind = ConvKind::of(layer);
-    let kernel = kind == ConvKind::Depthwise && depthwise_uses_kernel(&device);
+    let kernel = match kind {
+        ConvKind::Depthwise | ConvKind::Dense => conv_uses_kernel(&device),
+        ConvKind::Pointwise => false,
+    };
     let composite = conv_uses_composite(&device, kind);
     if !kernel && !composite {
         return layer.forward(x);
@@ -179,16 +184,22 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     if kernel && depthwise_kernel::supports(c, [h, w], weight.dims(), &options) {
         return depthwise_kernel::depthwise_conv2d(x, weight, bias, options);
     }
+    // Fewer output than input channels (SDFCNN's depth head, 256 -> 1): unfolding the input
+    // costs more than the product saves; `dense_output_taps` (ndarray) or Burn's kernel.
+    let [oc, ..] = weight.dims();
+    if kernel && oc >= c && dense_conv_kernel::supports(c, [h, w], weight.dims(), &options) {
+        return dense_conv_kernel::dense_conv2d(x, weight, bias, options);
+    }
     if !composite {
         return layer.forward(x);
     }
     conv2d_matmul(x, weight, bias, options)
 }
 
-/// Whether [`conv2d`] runs depthwise convolutions (dilation 1) through
-/// [`crate::nn::depthwise_kernel`]: on the CPU backends with autodiff (training) under
-/// [`OpImpl::Auto`].
-pub fn depthwise_uses_kernel(device: &Device) -> bool {
+/// Whether [`conv2d`] runs depthwise and dense convolutions (dilation 1) through
+/// [`crate::nn::depthwise_kernel`] and [`crate::nn::dense_conv_kernel`]: on the CPU backends
+/// with autodiff (training) under [`OpImpl::Auto`].
+pub fn conv_uses_kernel(device: &Device) -> bool {
     op_impl() == OpImpl::Auto && is_cpu(device) && device.is_autodiff()
 }
 
@@ -726,9 +737,9 @@ mod tests {
         assert_eq!(pool_path(&d.clone().autodiff()), PoolPath::Kernel);
         assert_eq!(pool_path(&Device::flex()), PoolPath::Shifted);
         assert_eq!(pool_path(&Device::flex().autodiff()), PoolPath::Kernel);
-        let kernel = [d.clone(), Device::flex()].map(|d| depthwise_uses_kernel(&d));
+        let kernel = [d.clone(), Device::flex()].map(|d| conv_uses_kernel(&d));
         assert_eq!(kernel, [false, false]);
-        let kernel = [d.autodiff(), Device::flex().autodiff()].map(|d| depthwise_uses_kernel(&d));
+        let kernel = [d.autodiff(), Device::flex().autodiff()].map(|d| conv_uses_kernel(&d));
         assert_eq!(kernel, [true, true]);
     }
 }

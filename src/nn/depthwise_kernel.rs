@@ -167,22 +167,23 @@ pub fn depthwise_conv2d(
     add_bias(out, bias)
 }
 
-/// Sizes of one convolution, in elements.
+/// Sizes of one convolution (dilation 1), in elements (also [`super::dense_conv_kernel`]'s).
 #[derive(Debug, Clone, Copy)]
-struct Geometry {
-    h: usize,
-    w: usize,
-    oh: usize,
-    ow: usize,
-    kh: usize,
-    kw: usize,
-    stride: [usize; 2],
+pub(super) struct Geometry {
+    pub(super) h: usize,
+    pub(super) w: usize,
+    pub(super) oh: usize,
+    pub(super) ow: usize,
+    pub(super) kh: usize,
+    pub(super) kw: usize,
+    pub(super) stride: [usize; 2],
     /// Top and left padding.
-    pad: [usize; 2],
+    pub(super) pad: [usize; 2],
 }
 
 impl Geometry {
-    fn new(x: &[usize], weight: &[usize], o: &DepthwiseOptions) -> Self {
+    /// Of input `x` (`[N, C, H, W]`) and `weight` (`[OC, C/groups, KH, KW]`) under `o`.
+    pub(super) fn new(x: &[usize], weight: &[usize], o: &DepthwiseOptions) -> Self {
         let (h, w, kh, kw) = (x[2], x[3], weight[2], weight[3]);
         let [pad_h, pad_w] = o.padding;
         let [sh, sw] = o.stride;
@@ -200,7 +201,7 @@ impl Geometry {
 
     /// The input row kernel row `i` reads for output row `oy`, if inside the image.
     #[inline(always)]
-    fn input_row(&self, oy: usize, i: usize) -> Option<usize> {
+    pub(super) fn input_row(&self, oy: usize, i: usize) -> Option<usize> {
         (oy * self.stride[0] + i)
             .checked_sub(self.pad[0])
             .filter(|&y| y < self.h)
@@ -209,7 +210,7 @@ impl Geometry {
     /// The output columns `lo..hi` whose kernel column `j` lands inside the input row, and
     /// the input column of `lo` (`lo · stride + j − left`).
     #[inline(always)]
-    fn columns(&self, j: usize) -> (usize, usize, usize) {
+    pub(super) fn columns(&self, j: usize) -> (usize, usize, usize) {
         let (s, left) = (self.stride[1], self.pad[1]);
         let lo = left.saturating_sub(j).div_ceil(s);
         // Last output column with lo·s + j − left ≤ w − 1.

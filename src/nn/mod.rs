@@ -6,6 +6,7 @@ pub mod activation;
 pub mod backend;
 pub mod batch_norm_kernel;
 pub mod conv;
+pub mod dense_conv_kernel;
 pub mod depthwise_kernel;
 pub mod elu_kernel;
 pub mod init;

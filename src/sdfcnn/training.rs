@@ -497,9 +497,13 @@ crp_stages = 2
         };
         // How far one epoch moves the encoder (Layer1, Layer7's last projection) and the
         // decoder (Layer7_13) from the same start, at the schedule's rate and at a millionth.
+        // Adam, whose steps do not scale with the gradient: this tiny network's Layer1 (batch
+        // norm over a batch of one or two 32x48 images) gets gradients whose size swings by
+        // orders of magnitude with float rounding, so SGD's steps there say little.
         let movement = |factor: f64| {
             let out = root.join(format!("run_{factor}"));
-            let text = format!("encoder_lr = {factor}\n{}", tiny_config(&out, ""));
+            let adam = "kind = \"adam\"";
+            let text = format!("encoder_lr = {factor}\n{}", tiny_config(&out, adam));
             let (before, after) = (start(&text), trained(&out, &text));
             let encoder = [
                 moved(&before.layer1.conv, &after.layer1.conv),

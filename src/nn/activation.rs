@@ -11,7 +11,7 @@ use burn::prelude::*;
 /// This form never exponentiates a positive number.
 ///
 /// On the CPU backends with `alpha > 0` it runs as one fused pass forward and one backward
-/// ([`super::elu_kernel`]); [`elu_composite`] elsewhere.
+/// ([`super::elu_kernel`]); [`elu_composite`] elsewhere and under [`super::OpImpl::Burn`].
 pub fn elu<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
     super::elu_kernel::elu_fused(x, alpha)
 }

@@ -207,19 +207,21 @@ impl Geometry {
             .filter(|&y| y < self.h)
     }
 
-    /// The output columns `lo..hi` whose kernel column `j` lands inside the input row, and
-    /// the input column of `lo` (`lo · stride + j − left`).
+    /// The output columns `lo..hi` (`lo ≤ hi ≤ OW`) whose kernel column `j` lands inside
+    /// the input row, and the input column of `lo` (`lo · stride + j − left`; 0 when there
+    /// are none).
     #[inline(always)]
     pub(super) fn columns(&self, j: usize) -> (usize, usize, usize) {
         let (s, left) = (self.stride[1], self.pad[1]);
-        let lo = left.saturating_sub(j).div_ceil(s);
+        let lo = left.saturating_sub(j).div_ceil(s).min(self.ow);
         // Last output column with lo·s + j − left ≤ w − 1.
         let hi = match (self.w + left).checked_sub(j + 1) {
             Some(last) => (last / s + 1).min(self.ow),
             None => 0,
         };
         let hi = hi.max(lo);
-        (lo, hi, (lo * s + j).saturating_sub(left))
+        let x0 = if hi > lo { lo * s + j - left } else { 0 };
+        (lo, hi, x0)
     }
 }
 
@@ -403,6 +405,8 @@ mod tests {
             (5, 4, 2, 2, 1),
             (1, 3, 1, 1, 1),
             (7, 3, 2, 0, 0),
+            (1, 5, 1, 2, 2),
+            (2, 5, 2, 2, 2),
         ] {
             let o = DepthwiseOptions {
                 stride: [1, s],
@@ -411,6 +415,7 @@ mod tests {
             let g = Geometry::new(&[1, 1, 1, w], &[1, 1, 1, k], &o);
             for j in 0..k {
                 let (lo, hi, x0) = g.columns(j);
+                assert!(lo <= hi && hi <= g.ow && x0 <= w, "w {w} k {k} s {s} j {j}");
                 let inside: Vec<usize> = (0..g.ow)
                     .filter(|ox| (ox * s + j).checked_sub(left).is_some_and(|x| x < w))
                     .collect();

@@ -5,12 +5,14 @@
 //! [`super::activation::elu_composite`] is six tensor ops (two clamps, each a comparison and a
 //! masked fill, an exponential, two scalar ops and a sum), each a pass over the activation
 //! with its own allocation, and as many again backward. Here the forward pass writes the
-//! output in place and the backward pass reads it back: the derivative is 1 where the output
-//! is positive and `y + a = a·eˣ` elsewhere, so nothing but the output is kept (the next
-//! convolution keeps it anyway). Only positive `a` takes this path. Values are the composite's
-//! (`f32` exponential); gradients agree within `f32` rounding, except at exactly `x = 0`,
-//! where this kernel takes the left derivative `a` (the composite's two clamps both pass it,
-//! `1 + a`).
+//! output over the input's buffer (over a copy when something else holds it) and the backward
+//! pass reads that output back: the derivative is 1 where it is positive and `y + a = a·eˣ`
+//! elsewhere, so nothing but the output is kept (the next convolution keeps it anyway). Only
+//! positive `a` takes this path. Values are the composite's (`f32` exponential); gradients
+//! agree within `a·2⁻²⁴` absolute (`y + a` cancels: below about `x = −17` the slope comes out
+//! 0 where the composite's is `a·eˣ`), except at exactly `x = 0`, where this kernel takes the
+//! left derivative `a` (the composite's two clamps both pass it, `1 + a`), and at NaN inputs,
+//! where the gradient passes unchanged (the composite's is NaN).
 
 // burn-ndarray is deprecated upstream but is this crate's default backend.
 #![allow(deprecated)]

@@ -23,12 +23,10 @@
 #![allow(deprecated)]
 
 use super::conv::add_bias;
-use super::depthwise_kernel::{DepthwiseOptions, Geometry};
+use super::depthwise_kernel::{ConvKernel, DepthwiseOptions, Geometry, autodiff_conv, kernel_fits};
 use super::pool_kernel::{tensor, values};
 use burn::backend::autodiff::Autodiff;
-use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
-use burn::backend::autodiff::grads::Gradients;
-use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Backend, Dispatch, Flex, NdArray, TensorMetadata, backend_extension};
 use burn::prelude::*;
@@ -89,52 +87,36 @@ impl<B: Backend, C: CheckpointStrategy> DenseConvOps for Autodiff<B, C> {
         weight: FloatTensor<Self>,
         options: DepthwiseOptions,
     ) -> FloatTensor<Self> {
-        #[derive(Debug)]
-        struct DenseConv;
+        autodiff_conv::<B, C, Dense>(x, weight, options)
+    }
+}
 
-        impl<B: Backend> Backward<B, 2> for DenseConv {
-            /// The input, the weight and the options.
-            type State = (FloatTensor<B>, FloatTensor<B>, DepthwiseOptions);
+/// The dense convolution's [`ConvKernel`].
+#[derive(Debug)]
+struct Dense;
 
-            fn backward(
-                self,
-                ops: Ops<Self::State, 2>,
-                grads: &mut Gradients,
-                _checkpointer: &mut Checkpointer,
-            ) {
-                let (x, weight, options) = ops.state;
-                let grad = grads.consume::<B>(&ops.node);
-                let [x_node, w_node] = ops.parents;
-                let want = [x_node.is_some(), w_node.is_some()];
-                let (gx, gw) = backward::<B>(x, weight, grad, options, want);
-                if let (Some(node), Some(gx)) = (x_node, gx) {
-                    grads.register::<B>(node.id, gx);
-                }
-                if let (Some(node), Some(gw)) = (w_node, gw) {
-                    grads.register::<B>(node.id, gw);
-                }
-            }
-        }
+impl ConvKernel for Dense {
+    fn forward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        options: DepthwiseOptions,
+    ) -> FloatTensor<B> {
+        forward::<B>(x, weight, options)
+    }
 
-        let (x_guard, w_guard) = (x.node(), weight.node());
-        let (x, weight) = (x.into_primitive(), weight.into_primitive());
-        match DenseConv
-            .prepare::<C>([x_guard, w_guard])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let out = forward::<B>(x.clone(), weight.clone(), options);
-                prep.finish((x, weight, options), out)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(forward::<B>(x, weight, options)),
-        }
+    fn backward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        grad: FloatTensor<B>,
+        options: DepthwiseOptions,
+        want: [bool; 2],
+    ) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>) {
+        backward::<B>(x, weight, grad, options, want)
     }
 }
 
 /// Whether [`dense_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`) on
-/// `c` input channels with `options`: groups 1, dilation 1, a kernel that fits the padded
-/// input.
+/// `c` input channels with `options`: groups 1, and [`kernel_fits`].
 pub fn supports(
     c: usize,
     [h, w]: [usize; 2],
@@ -142,19 +124,7 @@ pub fn supports(
     options: &ConvOptions<2>,
 ) -> bool {
     let [oc, c_in, kh, kw] = weight;
-    let [(t, b), (l, r)] = options.padding;
-    options.groups == 1
-        && h > 0
-        && w > 0
-        && c_in == c
-        && c > 0
-        && oc > 0
-        && options.dilation == [1, 1]
-        && options.stride.iter().all(|&s| s > 0)
-        && kh > 0
-        && kw > 0
-        && h + t + b >= kh
-        && w + l + r >= kw
+    options.groups == 1 && c_in == c && c > 0 && oc > 0 && kernel_fits([h, w], [kh, kw], options)
 }
 
 /// Dense convolution of `x` (`[N, C, H, W]`) with `weight` (`[OC, C, KH, KW]`) and an

@@ -72,51 +72,108 @@ impl<B: Backend, C: CheckpointStrategy> DepthwiseOps for Autodiff<B, C> {
         weight: FloatTensor<Self>,
         options: DepthwiseOptions,
     ) -> FloatTensor<Self> {
-        #[derive(Debug)]
-        struct DepthwiseConv;
+        autodiff_conv::<B, C, Depthwise>(x, weight, options)
+    }
+}
 
-        impl<B: Backend> Backward<B, 2> for DepthwiseConv {
-            /// The input, the weight and the options.
-            type State = (FloatTensor<B>, FloatTensor<B>, DepthwiseOptions);
+/// A convolution of an input by a weight that this crate computes on the CPU backends, with
+/// its own backward pass: [`Depthwise`] and [`super::dense_conv_kernel`]'s.
+pub(super) trait ConvKernel: std::fmt::Debug + Send + 'static {
+    /// The output, no bias.
+    fn forward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        options: DepthwiseOptions,
+    ) -> FloatTensor<B>;
 
-            fn backward(
-                self,
-                ops: Ops<Self::State, 2>,
-                grads: &mut Gradients,
-                _checkpointer: &mut Checkpointer,
-            ) {
-                let (x, weight, options) = ops.state;
-                let grad = grads.consume::<B>(&ops.node);
-                let [x_node, w_node] = ops.parents;
-                let (gx, gw) = backward::<B>(x, weight, grad, options, x_node.is_some());
-                if let (Some(node), Some(gx)) = (x_node, gx) {
-                    grads.register::<B>(node.id, gx);
-                }
-                if let Some(node) = w_node {
-                    grads.register::<B>(node.id, gw);
-                }
-            }
+    /// The input and the weight gradient from the output's, each when `want` asks for it.
+    fn backward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        grad: FloatTensor<B>,
+        options: DepthwiseOptions,
+        want: [bool; 2],
+    ) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>);
+}
+
+/// `K`'s node in the autodiff graph.
+#[derive(Debug)]
+struct Tracked<K>(std::marker::PhantomData<K>);
+
+impl<B: Backend, K: ConvKernel> Backward<B, 2> for Tracked<K> {
+    /// The input, the weight and the options.
+    type State = (FloatTensor<B>, FloatTensor<B>, DepthwiseOptions);
+
+    fn backward(
+        self,
+        ops: Ops<Self::State, 2>,
+        grads: &mut Gradients,
+        _checkpointer: &mut Checkpointer,
+    ) {
+        let (x, weight, options) = ops.state;
+        let grad = grads.consume::<B>(&ops.node);
+        let [x_node, w_node] = ops.parents;
+        let want = [x_node.is_some(), w_node.is_some()];
+        let (gx, gw) = K::backward::<B>(x, weight, grad, options, want);
+        if let (Some(node), Some(gx)) = (x_node, gx) {
+            grads.register::<B>(node.id, gx);
         }
-
-        let (x_guard, w_guard) = (x.node(), weight.node());
-        let (x, weight) = (x.into_primitive(), weight.into_primitive());
-        match DepthwiseConv
-            .prepare::<C>([x_guard, w_guard])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let out = forward::<B>(x.clone(), weight.clone(), options);
-                prep.finish((x, weight, options), out)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(forward::<B>(x, weight, options)),
+        if let (Some(node), Some(gw)) = (w_node, gw) {
+            grads.register::<B>(node.id, gw);
         }
     }
 }
 
+/// `K`'s convolution on the autodiff backend: its forward pass on the inner backend, its
+/// backward pass recorded when `x` or `weight` is tracked.
+pub(super) fn autodiff_conv<B: Backend, C: CheckpointStrategy, K: ConvKernel>(
+    x: FloatTensor<Autodiff<B, C>>,
+    weight: FloatTensor<Autodiff<B, C>>,
+    options: DepthwiseOptions,
+) -> FloatTensor<Autodiff<B, C>> {
+    let (x_guard, w_guard) = (x.node(), weight.node());
+    let (x, weight) = (x.into_primitive(), weight.into_primitive());
+    match Tracked::<K>(std::marker::PhantomData)
+        .prepare::<C>([x_guard, w_guard])
+        .compute_bound()
+        .stateful()
+    {
+        OpsKind::Tracked(prep) => {
+            let out = K::forward::<B>(x.clone(), weight.clone(), options);
+            prep.finish((x, weight, options), out)
+        }
+        OpsKind::UnTracked(prep) => prep.finish(K::forward::<B>(x, weight, options)),
+    }
+}
+
+/// The depthwise convolution's [`ConvKernel`].
+#[derive(Debug)]
+pub(super) struct Depthwise;
+
+impl ConvKernel for Depthwise {
+    fn forward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        options: DepthwiseOptions,
+    ) -> FloatTensor<B> {
+        forward::<B>(x, weight, options)
+    }
+
+    fn backward<B: Backend>(
+        x: FloatTensor<B>,
+        weight: FloatTensor<B>,
+        grad: FloatTensor<B>,
+        options: DepthwiseOptions,
+        [want_x, want_w]: [bool; 2],
+    ) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>) {
+        let (gx, gw) = backward::<B>(x, weight, grad, options, want_x);
+        (gx, want_w.then_some(gw))
+    }
+}
+
 /// Whether [`depthwise_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`)
-/// on `c` input channels with `options`: depthwise (`groups == C == OC`), dilation 1, a kernel
-/// that fits the padded input.
+/// on `c` input channels with `options`: depthwise (`groups == C == OC`), and
+/// [`kernel_fits`].
 pub fn supports(
     c: usize,
     [h, w]: [usize; 2],
@@ -124,12 +181,21 @@ pub fn supports(
     options: &ConvOptions<2>,
 ) -> bool {
     let [oc, c_per_group, kh, kw] = weight;
+    options.groups == c && oc == c && c_per_group == 1 && kernel_fits([h, w], [kh, kw], options)
+}
+
+/// What the kernels here need beyond the channels: dilation 1, non-zero strides, and a
+/// non-empty `[kh, kw]` kernel that fits the non-empty `[h, w]` input once padded.
+pub(super) fn kernel_fits(
+    [h, w]: [usize; 2],
+    [kh, kw]: [usize; 2],
+    options: &ConvOptions<2>,
+) -> bool {
     let [(t, b), (l, r)] = options.padding;
-    options.groups == c
-        && oc == c
-        && c_per_group == 1
-        && options.dilation == [1, 1]
+    options.dilation == [1, 1]
         && options.stride.iter().all(|&s| s > 0)
+        && h > 0
+        && w > 0
         && kh > 0
         && kw > 0
         && h + t + b >= kh

@@ -146,10 +146,7 @@ pub fn dense_conv2d(
         x.dims(),
         weight.dims()
     );
-    let options = DepthwiseOptions {
-        stride: options.stride,
-        padding: options.padding,
-    };
+    let options = DepthwiseOptions::from(&options);
     let out = Tensor::from_dispatch(Dispatch::dense_conv(
         x.into_dispatch(),
         weight.into_dispatch(),

@@ -35,6 +35,16 @@ pub struct DepthwiseOptions {
     pub padding: [(usize, usize); 2],
 }
 
+impl From<&ConvOptions<2>> for DepthwiseOptions {
+    /// The stride and padding of `options` (the callers check groups and dilation).
+    fn from(options: &ConvOptions<2>) -> Self {
+        Self {
+            stride: options.stride,
+            padding: options.padding,
+        }
+    }
+}
+
 /// The extension: `x` (`[N, C, H, W]`) convolved channel by channel with `weight`
 /// (`[C, 1, KH, KW]`), no bias.
 #[backend_extension(Flex, NdArray, Autodiff)]
@@ -221,10 +231,7 @@ pub fn depthwise_conv2d(
         x.dims(),
         weight.dims()
     );
-    let options = DepthwiseOptions {
-        stride: options.stride,
-        padding: options.padding,
-    };
+    let options = DepthwiseOptions::from(&options);
     let out = Tensor::from_dispatch(Dispatch::depthwise_conv(
         x.into_dispatch(),
         weight.into_dispatch(),

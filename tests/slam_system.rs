@@ -512,6 +512,27 @@ fn tracking_against_local_keyframes_is_accurate_and_thread_independent() {
 }
 
 #[test]
+fn tracking_against_the_fused_surface_is_accurate_and_thread_independent() {
+    let seq = box_room();
+    let fused = |threads: bool| {
+        let mut cfg = config(threads);
+        cfg.dense.fused_model = true;
+        slam(&seq, box_camera(), cfg, DepthMode::Sensor, false)
+            .run(quiet())
+            .unwrap()
+    };
+    let (a, b) = (fused(false), fused(true));
+    assert_eq!(a.trajectory().poses, b.trajectory().poses);
+    let e = ate(&a, &seq, Alignment::Se3);
+    assert!(e < 0.025, "ATE {e}");
+    // Every frame after the first is refined against the fused surface, none against a
+    // keyframe's depth alone.
+    let t = &a.tracking;
+    assert!(t.fused_kept > 0, "{t:?}");
+    assert_eq!(t.fused_kept, t.dense_kept, "{t:?}");
+}
+
+#[test]
 fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
     let src = box_room();
     let dir = tmp_dir("box_bad");

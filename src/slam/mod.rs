@@ -39,6 +39,7 @@ pub mod semantic_source;
 pub mod system;
 pub mod topdown;
 pub mod tracking;
+pub mod tsdf;
 
 pub use config::SlamConfig;
 pub use keypoints::{FpfdcnnSource, KeyFeatures, KeypointSource, OrbSource};

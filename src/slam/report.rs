@@ -96,6 +96,9 @@ pub struct TrackingReport {
     pub dense_kept: usize,
     #[serde(default)]
     pub dense_rejected: usize,
+    /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
+    #[serde(default)]
+    pub fused_kept: usize,
 }
 
 /// Everything `report.json` holds.
@@ -213,6 +216,7 @@ impl Report {
                 reinitialised_frames: t.reinitialised.clone(),
                 dense_kept: t.dense_kept,
                 dense_rejected: t.dense_rejected,
+                fused_kept: t.fused_kept,
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
@@ -540,8 +544,8 @@ impl Report {
         if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
             let _ = writeln!(
                 s,
-                "dense refinement kept for {} frames, not kept for {}",
-                self.tracking.dense_kept, self.tracking.dense_rejected
+                "dense refinement kept for {} frames ({} against the fused surface), not kept for {}",
+                self.tracking.dense_kept, self.tracking.fused_kept, self.tracking.dense_rejected
             );
         }
         let _ = writeln!(s, "speed {:.2} frames/s overall; per stage:", self.fps);

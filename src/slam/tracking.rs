@@ -19,6 +19,7 @@ use super::config::{LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
+use super::tsdf::{Tsdf, TsdfParams, subsample};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
@@ -180,7 +181,13 @@ pub struct TrackingCounters {
     /// ... and frames where it ran but did not agree with the keypoints or failed.
     #[serde(default)]
     pub dense_rejected: usize,
+    /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
+    #[serde(default)]
+    pub fused_kept: usize,
 }
+
+/// `dense.fused_model`: the fused surface is seen and fused at every this many pixels.
+const FUSED_STRIDE: u32 = 2;
 
 /// The tracking stage.
 pub struct Tracker {
@@ -197,6 +204,9 @@ pub struct Tracker {
     dense_model: Option<(usize, DepthModel)>,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
+    /// `dense.fused_model`: the surface fused from the tracked frames, and the rays of every
+    /// [`FUSED_STRIDE`]-th pixel it is seen and fused at.
+    fused: Option<(Tsdf, Arc<RayTable>)>,
     pub counters: TrackingCounters,
 }
 
@@ -213,6 +223,7 @@ impl Tracker {
             lost_streak: 0,
             dense_model: None,
             rays: None,
+            fused: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -295,10 +306,14 @@ impl Tracker {
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
         let mut dense = false;
-        if let Some(refined) = self.refine_dense(&input, reference_now, &pose) {
+        if let Some(refined) = self
+            .refine_fused(&input, &pose)
+            .or_else(|| self.refine_dense(&input, reference_now, &pose))
+        {
             pose = refined;
             dense = true;
         }
+        self.fuse(&input, &pose);
         // The PnP inliers against the reference keyframe: they decide on a new keyframe
         // and, kept in the frame's record, refine it after bundle adjustment.
         let observations: Vec<FrameObservation> = (0..corr.world.len())
@@ -423,6 +438,9 @@ impl Tracker {
             };
         }
         let depth = if self.monocular { None } else { input.depth };
+        if first {
+            self.fuse(&input, &pose);
+        }
         let id = self.keyframes.len();
         self.dense_model = None;
         if let Some(d) = depth.filter(|_| self.cfg.dense.enabled) {
@@ -532,6 +550,60 @@ impl Tracker {
                 None
             }
         }
+    }
+
+    /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
+    /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
+    /// off, before anything is fused, or when the alignment fails or disagrees.
+    fn refine_fused(&mut self, input: &TrackInput<'_>, pose: &Pose) -> Option<Pose> {
+        let cfg = &self.cfg.dense;
+        let depth = input.depth.filter(|_| cfg.enabled && !self.monocular)?;
+        let (tsdf, rays) = self.fused.as_ref()?;
+        let range = self.depth_range();
+        let frame = subsample(depth, rays.stride);
+        let max_distance = cfg
+            .levels
+            .iter()
+            .map(|l| l.max_distance)
+            .fold(0.0, f64::max);
+        let seen = tsdf.raycast(pose, rays, &frame, range, max_distance, 1.0);
+        let model = DepthModel::new(&seen, &self.camera, rays.clone(), 1, range)?;
+        let refined = align(&model, &frame, None, &Pose::identity(), range, cfg)
+            .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
+            .map(|a| a.pose)
+            .filter(|change| {
+                change.translation.vector.norm() <= cfg.agree_translation
+                    && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
+            })?;
+        self.counters.dense_kept += 1;
+        self.counters.fused_kept += 1;
+        Some(renormalized(&(pose * refined)))
+    }
+
+    /// `dense.fused_model`: fuses the frame's depth at `pose` (world from frame).
+    fn fuse(&mut self, input: &TrackInput<'_>, pose: &Pose) {
+        let cfg = &self.cfg.dense;
+        let Some(depth) = input
+            .depth
+            .filter(|_| cfg.enabled && cfg.fused_model && !self.monocular)
+        else {
+            return;
+        };
+        let range = self.depth_range();
+        let (tsdf, rays) = self.fused.get_or_insert_with(|| {
+            let params = TsdfParams {
+                voxel: cfg.fused_voxel,
+                truncation: cfg.fused_truncation,
+                max_weight: 64.0,
+                max_blocks: cfg.fused_max_blocks,
+            };
+            (
+                Tsdf::new(params),
+                Arc::new(RayTable::new(&self.camera, FUSED_STRIDE)),
+            )
+        });
+        let frame = subsample(depth, rays.stride);
+        tsdf.integrate(&frame, rays, &self.camera, pose, range, 2);
     }
 
     fn lost(

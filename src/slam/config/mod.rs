@@ -324,6 +324,16 @@ pub struct DenseConfig {
     /// deviation: one sigma of intensity weighs as one sigma of the sensor's depth noise at
     /// 1 m ([`crate::slam::depth_alignment`]); 0: depth alone.
     pub photometric_sigma: f64,
+    /// Refine each frame against the surface fused from every frame tracked before it (a
+    /// truncated signed distance volume, [`crate::slam::tsdf`], seen from the frame's pose
+    /// from the keypoints), as KinectFusion tracks, instead of its reference keyframe's depth;
+    /// the keyframe's depth when the fused surface pairs too few points.
+    pub fused_model: bool,
+    /// The fused volume's voxel side and truncation distance, metres.
+    pub fused_voxel: f64,
+    pub fused_truncation: f64,
+    /// At most this many blocks of 8x8x8 voxels (4 KB each).
+    pub fused_max_blocks: usize,
 }
 
 /// One level of [`DenseConfig::levels`].
@@ -367,6 +377,10 @@ impl Default for DenseConfig {
             prior_sigma_translation: 0.0005,
             prior_sigma_rotation_deg: 0.1,
             photometric_sigma: 0.0,
+            fused_model: false,
+            fused_voxel: 0.01,
+            fused_truncation: 0.04,
+            fused_max_blocks: 100_000,
         }
     }
 }
@@ -793,6 +807,12 @@ mod tests {
             ("dense", "photometric_sigma", "-0.1"),
             ("dense", "photometric_sigma", "1e-9"),
             ("dense", "photometric_sigma", "nan"),
+            ("dense", "fused_voxel", "0.0001"),
+            ("dense", "fused_voxel", "nan"),
+            ("dense", "fused_truncation", "0.001"),
+            ("dense", "fused_truncation", "inf"),
+            ("dense", "fused_max_blocks", "0"),
+            ("dense", "fused_max_blocks", "100000000"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
             ("bundle_adjustment", "local_keyframes", "301"),

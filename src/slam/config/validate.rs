@@ -185,6 +185,21 @@ impl SlamConfig {
                 "dense.photometric_sigma must be 0 (off) or in [0.001, 1], got {sigma}"
             ));
         }
+        // Voxels of 2 mm to 10 cm, a truncation of at least one voxel; the block count sizes
+        // the volume's memory (4 KB a block: 2 GB at the bound).
+        if !(0.002..=0.1).contains(&d.fused_voxel) {
+            return Err(format!(
+                "dense.fused_voxel must be in [0.002, 0.1] metres, got {}",
+                d.fused_voxel
+            ));
+        }
+        if !(d.fused_truncation >= d.fused_voxel && d.fused_truncation <= 1.0) {
+            return Err(format!(
+                "dense.fused_truncation must be in [dense.fused_voxel, 1] metres, got {}",
+                d.fused_truncation
+            ));
+        }
+        count(d.fused_max_blocks, 1, 500_000, "dense.fused_max_blocks")?;
         Ok(())
     }
 

@@ -525,11 +525,11 @@ fn tracking_against_the_fused_surface_is_accurate_and_thread_independent() {
     assert_eq!(a.trajectory().poses, b.trajectory().poses);
     let e = ate(&a, &seq, Alignment::Se3);
     assert!(e < 0.025, "ATE {e}");
-    // Every frame after the first is refined against the fused surface, none against a
-    // keyframe's depth alone.
+    // The frames after the first are refined against the fused surface (nine in ten at
+    // least; one that it pairs too few points of falls back to its keyframe's depth).
     let t = &a.tracking;
-    assert!(t.fused_kept > 0, "{t:?}");
-    assert_eq!(t.fused_kept, t.dense_kept, "{t:?}");
+    assert!(t.dense_kept >= 20, "{t:?}");
+    assert!(10 * t.fused_kept >= 9 * t.dense_kept, "{t:?}");
 }
 
 #[test]

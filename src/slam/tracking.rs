@@ -438,7 +438,12 @@ impl Tracker {
             };
         }
         let depth = if self.monocular { None } else { input.depth };
-        if first {
+        if status == FrameStatus::Lost {
+            // A restart at a guessed pose: the surface fused so far may not be where the new
+            // keyframe thinks; start it again from here.
+            self.fused = None;
+        }
+        if first || status == FrameStatus::Lost {
             self.fuse(&input, &pose);
         }
         let id = self.keyframes.len();
@@ -603,7 +608,12 @@ impl Tracker {
             )
         });
         let frame = subsample(depth, rays.stride);
-        tsdf.integrate(&frame, rays, &self.camera, pose, range, 2);
+        // Depth samples that allocate blocks at most a block apart at the farthest depth, so
+        // that no block between them is missed.
+        let block = 8.0 * cfg.fused_voxel;
+        let spacing = f64::from(rays.stride) * range.1 / self.camera.fx.max(1.0);
+        let step = ((block / spacing) as usize).clamp(1, 16);
+        tsdf.integrate(&frame, rays, &self.camera, pose, range, step);
     }
 
     fn lost(

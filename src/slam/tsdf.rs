@@ -22,6 +22,22 @@ use rustc_hash::{FxHashMap, FxHashSet};
 const SIDE: i32 = 8;
 /// Voxels in a block.
 const VOXELS: usize = (SIDE * SIDE * SIDE) as usize;
+/// Block indices stay below this in magnitude, so that voxel indices (times [`SIDE`], plus
+/// one) fit an `i32`.
+const MAX_BLOCK_INDEX: f64 = (1 << 26) as f64;
+
+/// Whether `pose` can place points: finite, within a thousand kilometres of the origin.
+fn usable(pose: &Pose) -> bool {
+    let t = pose.translation.vector;
+    t.iter().all(|v| v.is_finite() && v.abs() < 1e6)
+        && pose.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+/// Whether `depth` holds as many values as its size says and is sampled as `rays` is.
+fn fits(depth: &DepthImage, rays: &RayTable) -> bool {
+    (depth.width, depth.height) == (rays.width, rays.height)
+        && depth.data.len() == depth.width as usize * depth.height as usize
+}
 
 /// One block: per voxel, the distance in truncation units (-1 to 1) and its weight
 /// (0: never observed).
@@ -79,13 +95,14 @@ impl Tsdf {
         self.blocks.len()
     }
 
-    fn block_of(&self, p: &Point3<f64>) -> [i32; 3] {
+    /// The block holding `p`; `None` for a point that is not finite or so far out that its
+    /// voxel indices would overflow.
+    fn block_of(&self, p: &Point3<f64>) -> Option<[i32; 3]> {
         let side = self.params.voxel * SIDE as f64;
-        [
-            (p.x / side).floor() as i32,
-            (p.y / side).floor() as i32,
-            (p.z / side).floor() as i32,
-        ]
+        let key = [p.x / side, p.y / side, p.z / side].map(f64::floor);
+        key.iter()
+            .all(|k| k.abs() < MAX_BLOCK_INDEX)
+            .then(|| key.map(|k| k as i32))
     }
 
     /// Fuses `depth` (sampled as `rays`, seen from `pose`, world from camera): every
@@ -101,7 +118,7 @@ impl Tsdf {
         range: (f64, f64),
         alloc_step: usize,
     ) {
-        if (depth.width, depth.height) != (rays.width, rays.height) {
+        if !fits(depth, rays) || !usable(pose) {
             return;
         }
         let t = self.params.truncation;
@@ -115,9 +132,12 @@ impl Tsdf {
                     continue;
                 }
                 let p = rays.point(u, v, z);
-                for f in [-1.0, -0.5, 0.0, 0.5, 1.0] {
-                    let q = pose * (p * ((z + f * t) / z));
-                    touched_keys.insert(self.block_of(&q));
+                // Along the band in steps of at most half a block (the truncation is at most
+                // two blocks: `validate`), so that no block it crosses is skipped.
+                for f in [-1.0, -0.75, -0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0] {
+                    if let Some(key) = self.block_of(&(pose * (p * ((z + f * t) / z)))) {
+                        touched_keys.insert(key);
+                    }
                 }
             }
         }
@@ -200,6 +220,11 @@ impl Tsdf {
         let v = self.params.voxel;
         let g = [p.x / v - 0.5, p.y / v - 0.5, p.z / v - 0.5];
         let g0 = g.map(|c| c.floor());
+        // NaN fails the test too.
+        let bound = MAX_BLOCK_INDEX * f64::from(SIDE);
+        if !g0.iter().all(|c| c.abs() < bound) {
+            return None;
+        }
         let f = [g[0] - g0[0], g[1] - g0[1], g[2] - g0[2]];
         let base = g0.map(|c| c as i32);
         let (mut sum, mut least) = (0.0, f32::MAX);
@@ -231,7 +256,7 @@ impl Tsdf {
     ) -> DepthImage {
         let w = rays.width as usize;
         let mut out = DepthImage::new(rays.width, rays.height);
-        if (hint.width, hint.height) != (rays.width, rays.height) || self.blocks.is_empty() {
+        if w == 0 || !fits(hint, rays) || !usable(pose) || self.blocks.is_empty() {
             return out;
         }
         let t = self.params.truncation;
@@ -274,6 +299,9 @@ pub fn subsample(depth: &DepthImage, stride: u32) -> DepthImage {
     let stride = stride.max(1);
     let (w, h) = (depth.width.div_ceil(stride), depth.height.div_ceil(stride));
     let mut out = DepthImage::new(w, h);
+    if depth.data.len() != depth.width as usize * depth.height as usize {
+        return out;
+    }
     for y in 0..h {
         for x in 0..w {
             out.data[(y * w + x) as usize] =
@@ -371,5 +399,30 @@ mod tests {
         assert_eq!(empty.n_blocks(), 0);
         let seen = tsdf.raycast(&p, &rays, &small, (0.3, 6.0), 0.1, 1.0);
         assert!(seen.data.iter().all(|z| *z == 0.0));
+        // Poses that cannot place points (a degenerate solve, a bad start pose) fuse nothing
+        // and see nothing, without overflowing the voxel indices.
+        for bad in [
+            pose(f64::INFINITY, 0.0, 0.0, 0.0),
+            pose(f64::NAN, 0.0, 0.0, 0.0),
+            pose(1e12, 0.0, 0.0, 0.0),
+        ] {
+            let mut fresh = Tsdf::new(params());
+            fresh.integrate(&depth, &rays, &camera, &bad, (0.3, 6.0), 1);
+            assert_eq!(fresh.n_blocks(), 0);
+            let seen = tsdf.raycast(&bad, &rays, &depth, (0.3, 6.0), 0.1, 1.0);
+            assert!(seen.data.iter().all(|z| *z == 0.0));
+        }
+        // A depth image whose data does not match its size.
+        let mut short = depth.clone();
+        short.data.truncate(10);
+        tsdf.integrate(&short, &rays, &camera, &p, (0.3, 6.0), 1);
+        assert_eq!(
+            subsample(&short, 2)
+                .data
+                .iter()
+                .filter(|z| **z != 0.0)
+                .count(),
+            0
+        );
     }
 }

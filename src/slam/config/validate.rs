@@ -193,9 +193,14 @@ impl SlamConfig {
                 d.fused_voxel
             ));
         }
-        if !(d.fused_truncation >= d.fused_voxel && d.fused_truncation <= 1.0) {
+        // At least two voxels, so that the eight voxels around a point just behind the
+        // surface were written; at most two blocks, which allocation's steps along the band
+        // assume.
+        let (lo, hi) = (2.0 * d.fused_voxel, 16.0 * d.fused_voxel);
+        if !(d.fused_truncation >= lo && d.fused_truncation <= hi) {
             return Err(format!(
-                "dense.fused_truncation must be in [dense.fused_voxel, 1] metres, got {}",
+                "dense.fused_truncation must be in [2, 16] x dense.fused_voxel ({lo} to {hi} \
+                 metres), got {}",
                 d.fused_truncation
             ));
         }

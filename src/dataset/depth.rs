@@ -36,6 +36,24 @@ impl DepthImage {
         self.get(x.round() as i64, y.round() as i64)
     }
 
+    /// Every `stride`-th pixel in x and y (nearest: depths are not blended across edges), the
+    /// sides rounded up; all zeros when `data` does not hold `width * height` values.
+    pub fn subsample(&self, stride: u32) -> DepthImage {
+        let stride = stride.max(1);
+        let (w, h) = (self.width.div_ceil(stride), self.height.div_ceil(stride));
+        let mut out = DepthImage::new(w, h);
+        if self.data.len() != self.width as usize * self.height as usize {
+            return out;
+        }
+        for y in 0..h {
+            for x in 0..w {
+                out.data[(y * w + x) as usize] =
+                    self.data[(y * stride * self.width + x * stride) as usize];
+            }
+        }
+        out
+    }
+
     /// Fraction of pixels with a reading.
     pub fn valid_fraction(&self) -> f64 {
         let n = self.data.iter().filter(|&&d| d > 0.0).count();
@@ -98,5 +116,26 @@ pub fn read_png_u16(path: &Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
                 other.color()
             ),
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DepthImage;
+
+    #[test]
+    fn subsample_takes_every_stride_th_pixel_and_rounds_the_sides_up() {
+        let mut d = DepthImage::new(5, 3);
+        for (i, v) in d.data.iter_mut().enumerate() {
+            *v = i as f32;
+        }
+        let s = d.subsample(2);
+        assert_eq!((s.width, s.height), (3, 2));
+        assert_eq!(s.data, vec![0.0, 2.0, 4.0, 10.0, 12.0, 14.0]);
+        assert_eq!(d.subsample(1), d);
+        assert_eq!(d.subsample(0), d);
+        // Data that do not match the size give zeros, not a panic.
+        d.data.truncate(4);
+        assert!(d.subsample(2).data.iter().all(|v| *v == 0.0));
     }
 }

@@ -442,19 +442,6 @@ mod tests {
         (img, depth)
     }
 
-    /// Every `stride`-th pixel (the map's grid).
-    fn subsample(d: &DepthImage, stride: u32) -> DepthImage {
-        let (w, h) = (d.width.div_ceil(stride), d.height.div_ceil(stride));
-        let mut out = DepthImage::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                out.data[(y * w + x) as usize] =
-                    d.data[(y * stride * d.width + x * stride) as usize];
-            }
-        }
-        out
-    }
-
     fn settings() -> MultiviewConfig {
         MultiviewConfig::default()
     }
@@ -469,7 +456,7 @@ mod tests {
             UnitQuaternion::from_euler_angles(0.0, 0.02, 0.0),
         );
         let (img, truth) = render(&camera, 1, &target_pose, 2.0);
-        let truth = subsample(&truth, stride);
+        let truth = truth.subsample(stride);
         let (ref_img, _) = render(&camera, 1, &ref_pose, 2.0);
         let (target, reference) = (GrayView::from_rgb(&img), GrayView::from_rgb(&ref_img));
         // The prediction is 15 % too far.
@@ -542,7 +529,7 @@ mod tests {
         let stride = 2;
         let pose = Pose::identity();
         let (img, truth) = render(&camera, 1, &pose, 2.0);
-        let truth = subsample(&truth, stride);
+        let truth = truth.subsample(stride);
         let target = GrayView::from_rgb(&img);
         // A pure rotation gives no parallax.
         let rotated = Pose::from_parts(

@@ -19,7 +19,7 @@ use super::config::{LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
-use super::tsdf::{Tsdf, TsdfParams, subsample};
+use super::tsdf::{Tsdf, TsdfParams};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
@@ -565,7 +565,7 @@ impl Tracker {
         let depth = input.depth.filter(|_| cfg.enabled && !self.monocular)?;
         let (tsdf, rays) = self.fused.as_ref()?;
         let range = self.depth_range();
-        let frame = subsample(depth, rays.stride);
+        let frame = depth.subsample(rays.stride);
         let max_distance = cfg
             .levels
             .iter()
@@ -607,7 +607,7 @@ impl Tracker {
                 Arc::new(RayTable::new(&self.camera, FUSED_STRIDE)),
             )
         });
-        let frame = subsample(depth, rays.stride);
+        let frame = depth.subsample(rays.stride);
         // Depth samples that allocate blocks at most a block apart at the farthest depth, so
         // that no block between them is missed.
         let block = 8.0 * cfg.fused_voxel;

@@ -294,23 +294,6 @@ impl Tsdf {
     }
 }
 
-/// Every `stride`-th pixel of `depth` (nearest: depths are not blended across edges).
-pub fn subsample(depth: &DepthImage, stride: u32) -> DepthImage {
-    let stride = stride.max(1);
-    let (w, h) = (depth.width.div_ceil(stride), depth.height.div_ceil(stride));
-    let mut out = DepthImage::new(w, h);
-    if depth.data.len() != depth.width as usize * depth.height as usize {
-        return out;
-    }
-    for y in 0..h {
-        for x in 0..w {
-            out.data[(y * w + x) as usize] =
-                depth.data[(y * stride * depth.width + x * stride) as usize];
-        }
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -346,12 +329,12 @@ mod tests {
             pose(0.05, 0.0, 0.1, 3.0),
             pose(-0.04, 0.02, 0.05, -4.0),
         ] {
-            let depth = subsample(&render(&camera, &p), 2);
+            let depth = render(&camera, &p).subsample(2);
             tsdf.integrate(&depth, &rays, &camera, &p, range, 2);
         }
         assert!(tsdf.n_blocks() > 0 && tsdf.dropped == 0);
         let view = pose(0.01, -0.01, 0.04, 1.5);
-        let truth = subsample(&render(&camera, &view), 2);
+        let truth = render(&camera, &view).subsample(2);
         let mut hint = truth.clone();
         hint.data
             .iter_mut()
@@ -394,7 +377,7 @@ mod tests {
         assert_eq!(tsdf.n_blocks(), 3);
         assert!(tsdf.dropped > 0);
         let mut empty = Tsdf::new(params());
-        let small = subsample(&depth, 2);
+        let small = depth.subsample(2);
         empty.integrate(&small, &rays, &camera, &p, (0.3, 6.0), 1);
         assert_eq!(empty.n_blocks(), 0);
         let seen = tsdf.raycast(&p, &rays, &small, (0.3, 6.0), 0.1, 1.0);
@@ -417,7 +400,8 @@ mod tests {
         short.data.truncate(10);
         tsdf.integrate(&short, &rays, &camera, &p, (0.3, 6.0), 1);
         assert_eq!(
-            subsample(&short, 2)
+            short
+                .subsample(2)
                 .data
                 .iter()
                 .filter(|z| **z != 0.0)

@@ -306,14 +306,20 @@ impl Tracker {
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
         let mut dense = false;
-        if let Some(refined) = self
-            .refine_fused(&input, &pose)
+        // `dense.fused_model`: the frame's depth at the fused surface's resolution, made once
+        // for refining against the surface and fusing into it.
+        let fused_depth = self.fused_depth(&input);
+        if let Some(refined) = fused_depth
+            .as_ref()
+            .and_then(|d| self.refine_fused(d, &pose))
             .or_else(|| self.refine_dense(&input, reference_now, &pose))
         {
             pose = refined;
             dense = true;
         }
-        self.fuse(&input, &pose);
+        if let Some(d) = &fused_depth {
+            self.fuse(d, &pose);
+        }
         // The PnP inliers against the reference keyframe: they decide on a new keyframe
         // and, kept in the frame's record, refine it after bundle adjustment.
         let observations: Vec<FrameObservation> = (0..corr.world.len())
@@ -443,8 +449,10 @@ impl Tracker {
             // keyframe thinks; start it again from here.
             self.fused = None;
         }
-        if first || status == FrameStatus::Lost {
-            self.fuse(&input, &pose);
+        if (first || status == FrameStatus::Lost)
+            && let Some(d) = self.fused_depth(&input)
+        {
+            self.fuse(&d, &pose);
         }
         let id = self.keyframes.len();
         self.dense_model = None;
@@ -560,20 +568,18 @@ impl Tracker {
     /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
     /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
     /// off, before anything is fused, or when the alignment fails or disagrees.
-    fn refine_fused(&mut self, input: &TrackInput<'_>, pose: &Pose) -> Option<Pose> {
+    fn refine_fused(&mut self, frame: &DepthImage, pose: &Pose) -> Option<Pose> {
         let cfg = &self.cfg.dense;
-        let depth = input.depth.filter(|_| cfg.enabled && !self.monocular)?;
         let (tsdf, rays) = self.fused.as_ref()?;
         let range = self.depth_range();
-        let frame = depth.subsample(rays.stride);
         let max_distance = cfg
             .levels
             .iter()
             .map(|l| l.max_distance)
             .fold(0.0, f64::max);
-        let seen = tsdf.raycast(pose, rays, &frame, range, max_distance, 1.0);
+        let seen = tsdf.raycast(pose, rays, frame, range, max_distance, 1.0);
         let model = DepthModel::new(&seen, &self.camera, rays.clone(), 1, range)?;
-        let refined = align(&model, &frame, None, &Pose::identity(), range, cfg)
+        let refined = align(&model, frame, None, &Pose::identity(), range, cfg)
             .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
             .map(|a| a.pose)
             .filter(|change| {
@@ -585,15 +591,20 @@ impl Tracker {
         Some(renormalized(&(pose * refined)))
     }
 
-    /// `dense.fused_model`: fuses the frame's depth at `pose` (world from frame).
-    fn fuse(&mut self, input: &TrackInput<'_>, pose: &Pose) {
+    /// `dense.fused_model` (RGB-D, dense refinement on): the frame's depth every
+    /// [`FUSED_STRIDE`]-th pixel; `None` otherwise.
+    fn fused_depth(&self, input: &TrackInput<'_>) -> Option<DepthImage> {
         let cfg = &self.cfg.dense;
-        let Some(depth) = input
+        input
             .depth
             .filter(|_| cfg.enabled && cfg.fused_model && !self.monocular)
-        else {
-            return;
-        };
+            .map(|d| d.subsample(FUSED_STRIDE))
+    }
+
+    /// `dense.fused_model`: fuses `frame` ([`Self::fused_depth`]) at `pose` (world from
+    /// frame).
+    fn fuse(&mut self, frame: &DepthImage, pose: &Pose) {
+        let cfg = &self.cfg.dense;
         let range = self.depth_range();
         let (tsdf, rays) = self.fused.get_or_insert_with(|| {
             let params = TsdfParams {
@@ -607,13 +618,12 @@ impl Tracker {
                 Arc::new(RayTable::new(&self.camera, FUSED_STRIDE)),
             )
         });
-        let frame = depth.subsample(rays.stride);
         // Depth samples that allocate blocks at most a block apart at the farthest depth, so
         // that no block between them is missed.
         let block = 8.0 * cfg.fused_voxel;
         let spacing = f64::from(rays.stride) * range.1 / self.camera.fx.max(1.0);
         let step = ((block / spacing) as usize).clamp(1, 16);
-        tsdf.integrate(&frame, rays, &self.camera, pose, range, step);
+        tsdf.integrate(frame, rays, &self.camera, pose, range, step);
     }
 
     fn lost(

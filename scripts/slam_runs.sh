@@ -6,6 +6,9 @@
 #                                                             # 600-699, TUM fr1_rpy 0-79
 #   scripts/slam_runs.sh held-back CONFIG.toml OUT_DIR        # RGB-D: 7-Scenes 400-599,
 #                                                             # 700-799, 600-799
+#   scripts/slam_runs.sh tum CONFIG.toml OUT_DIR              # RGB-D: TUM fr1_rpy 0-79,
+#                                                             # 10-79, 20-79 (selection frames:
+#                                                             # for what only TUM data shows)
 #   scripts/slam_runs.sh mono-selection CONFIG.toml OUT_DIR   # monocular: 7-Scenes 0-199,
 #                                                             # 200-399, 600-699
 #   scripts/slam_runs.sh mono-held-back CONFIG.toml OUT_DIR   # monocular: 7-Scenes 700-799,
@@ -26,7 +29,7 @@
 set -euo pipefail
 
 usage() {
-    echo "usage: $0 selection|held-back|mono-selection|mono-held-back CONFIG.toml OUT_DIR" >&2
+    echo "usage: $0 selection|held-back|tum|mono-selection|mono-held-back CONFIG.toml OUT_DIR" >&2
     exit 2
 }
 [ $# -eq 3 ] || usage
@@ -47,6 +50,9 @@ selection)
     ;;
 held-back)
     runs=("h400|$seven|400|200" "h700|$seven|700|100" "h600|$seven|600|200")
+    ;;
+tum)
+    runs=("fr1|$fr1|0|80" "fr1_10|$fr1|10|70" "fr1_20|$fr1|20|60")
     ;;
 mono-selection)
     runs=("s0|$seven|0|200" "s200|$seven|200|200" "s600|$seven|600|100")

@@ -22,6 +22,7 @@ pub mod config;
 pub mod correction;
 pub mod depth_alignment;
 pub mod depth_edges;
+pub mod depth_sync;
 pub mod evaluation;
 pub mod keyframe_alignment;
 pub mod keypoints;

@@ -244,6 +244,8 @@ impl SlamOutput {
 struct Loaded {
     rgb: RgbImage,
     depth: Option<DepthImage>,
+    /// The depth image's stamp minus the colour image's, seconds.
+    depth_offset: f64,
     stamp: f64,
     gt: Option<Pose>,
 }
@@ -255,14 +257,20 @@ fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
         Ok(Loaded {
             rgb,
             depth: None,
+            depth_offset: 0.0,
             stamp,
             gt: seq.gt_pose_at(stamp),
         })
     } else {
         let f = seq.load_frame(i)?;
+        let depth_offset = match (&f.depth, seq.frames[i].depth_stamp) {
+            (Some(_), Some(t)) => t - seq.frames[i].rgb_stamp,
+            _ => 0.0,
+        };
         Ok(Loaded {
             rgb: f.rgb,
             depth: f.depth,
+            depth_offset,
             stamp: f.stamp,
             gt: f.gt_pose,
         })
@@ -367,6 +375,7 @@ fn tracking_loop(
             stamp: frame.stamp,
             features,
             depth: frame.depth.as_ref(),
+            depth_offset: frame.depth_offset,
             gt_pose: frame.gt,
         });
         run.tracking.add(t);
@@ -378,7 +387,7 @@ fn tracking_loop(
             let reply = on_keyframe(MapperInput {
                 keyframe: kf,
                 rgb: frame.rgb,
-                depth: frame.depth,
+                depth: out.depth.or(frame.depth),
             });
             if let Some(track) = reply {
                 tracker.update_keyframe(id, track);

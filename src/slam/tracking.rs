@@ -17,6 +17,7 @@
 
 use super::config::{LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
+use super::depth_sync;
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
 use super::tsdf::{Tsdf, TsdfParams};
@@ -99,6 +100,8 @@ pub struct TrackInput<'a> {
     pub features: KeyFeatures,
     /// Sensor depth (RGB-D mode only).
     pub depth: Option<&'a DepthImage>,
+    /// The depth image's stamp minus the colour image's, seconds (0 when equal or unknown).
+    pub depth_offset: f64,
     pub gt_pose: Option<Pose>,
 }
 
@@ -109,6 +112,9 @@ pub struct TrackOutput {
     pub keyframe: Option<NewKeyframe>,
     /// What happened, for the log (lost, relocalised, restarted).
     pub events: Vec<String>,
+    /// `tracking.sync_depth`: the frame's depth re-registered to its colour image's instant,
+    /// when it was; tracking used it, and the mapping stage takes it in place of the sensor's.
+    pub depth: Option<DepthImage>,
 }
 
 struct TrackedKeyframe {
@@ -119,6 +125,7 @@ struct TrackedKeyframe {
 
 struct LastFrame {
     index: usize,
+    stamp: f64,
     pose: Pose,
     features: KeyFeatures,
     world: Vec<Option<Point3<f64>>>,
@@ -263,9 +270,9 @@ impl Tracker {
         let Some(reference) = self.reference else {
             return self.start(input, None, FrameStatus::Initialised, events);
         };
-        let (last_pose, last_index) = match &self.last {
-            Some(l) => (l.pose, l.index),
-            None => (self.keyframes[reference].pose, input.index),
+        let (last_pose, last_index, last_stamp) = match &self.last {
+            Some(l) => (l.pose, l.index, Some(l.stamp)),
+            None => (self.keyframes[reference].pose, input.index, None),
         };
         // Constant velocity, scaled by the frame gap (skipped frames).
         let gap = input.index.saturating_sub(last_index).max(1);
@@ -305,6 +312,13 @@ impl Tracker {
         self.lost_streak = 0;
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
+        // `tracking.sync_depth`: from here on the frame's depth is the one seen at its colour
+        // image's instant, by this frame's motion since the last.
+        let synced = last_stamp.and_then(|t| self.sync_depth(&input, &last_pose, t, &pose));
+        let input = TrackInput {
+            depth: synced.as_ref().or(input.depth),
+            ..input
+        };
         let mut dense = false;
         // `dense.fused_model`: the frame's depth at the fused surface's resolution, made once
         // for refining against the surface and fusing into it.
@@ -374,6 +388,7 @@ impl Tracker {
             let mut out = self.start(input, Some(pose), status, events);
             out.record.inliers = inliers;
             out.record.correspondences = corr.world.len();
+            out.depth = synced;
             return out;
         }
         let record = FrameRecord {
@@ -391,6 +406,7 @@ impl Tracker {
         };
         self.last = Some(LastFrame {
             index: input.index,
+            stamp: input.stamp,
             pose,
             features: input.features,
             world,
@@ -399,6 +415,7 @@ impl Tracker {
             record,
             keyframe: None,
             events,
+            depth: synced,
         }
     }
 
@@ -441,6 +458,7 @@ impl Tracker {
                 },
                 keyframe: None,
                 events,
+                depth: None,
             };
         }
         let depth = if self.monocular { None } else { input.depth };
@@ -508,6 +526,7 @@ impl Tracker {
         };
         self.last = Some(LastFrame {
             index: input.index,
+            stamp: input.stamp,
             pose,
             features: input.features,
             world,
@@ -523,6 +542,7 @@ impl Tracker {
                 track: data,
             }),
             events,
+            depth: None,
         }
     }
 
@@ -568,6 +588,27 @@ impl Tracker {
     /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
     /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
     /// off, before anything is fused, or when the alignment fails or disagrees.
+    /// `tracking.sync_depth` (RGB-D): the frame's depth re-registered to its colour image's
+    /// instant, the camera's motion over the stamps' offset taken from this frame's step since
+    /// the last (`last_pose` at `last_stamp` to `pose`); `None` when it is off, the offset is
+    /// too short to matter or the motion cannot be extrapolated.
+    fn sync_depth(
+        &mut self,
+        input: &TrackInput<'_>,
+        last_pose: &Pose,
+        last_stamp: f64,
+        pose: &Pose,
+    ) -> Option<DepthImage> {
+        let depth = input.depth.filter(|_| self.cfg.tracking.sync_depth)?;
+        let step = last_pose.inverse() * pose;
+        let motion = depth_sync::motion_over(&step, input.stamp - last_stamp, input.depth_offset)?;
+        let camera = &self.camera;
+        let rays = self
+            .rays
+            .get_or_insert_with(|| Arc::new(RayTable::new(camera, 1)));
+        depth_sync::register(depth, camera, rays, &motion)
+    }
+
     fn refine_fused(&mut self, frame: &DepthImage, pose: &Pose) -> Option<Pose> {
         let cfg = &self.cfg.dense;
         let (tsdf, rays) = self.fused.as_ref()?;
@@ -655,11 +696,13 @@ impl Tracker {
         if let Some(last) = &mut self.last {
             last.pose = predicted;
             last.index = input.index;
+            last.stamp = input.stamp;
         }
         TrackOutput {
             record,
             keyframe: None,
             events,
+            depth: None,
         }
     }
 

@@ -242,6 +242,10 @@ pub struct TrackingConfig {
     /// Start at the ground-truth pose of the first frame when the sequence has
     /// one (otherwise the identity), so that unaligned errors mean something.
     pub start_at_ground_truth: bool,
+    /// RGB-D mode: re-register each depth image to its colour image's instant by the camera's
+    /// motion between the two stamps, at the frame's own velocity
+    /// ([`crate::slam::depth_sync`]; TUM's Kinect streams are not synchronised).
+    pub sync_depth: bool,
 }
 
 impl Default for TrackingConfig {
@@ -254,6 +258,7 @@ impl Default for TrackingConfig {
             relocalisation_candidates: 5,
             reinitialise_after: 10,
             start_at_ground_truth: true,
+            sync_depth: false,
         }
     }
 }

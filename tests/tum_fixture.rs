@@ -46,6 +46,22 @@ fn reads_frames_depth_and_ground_truth() {
     let p = seq.gt_pose_at(gt.stamps[k]).unwrap();
     assert!((p.translation.vector - gt.poses[k].translation.vector).norm() < 1e-12);
     assert!(seq.gt_pose_at(gt.stamps[0] - 1.0).is_none());
+    // With a time offset every frame reads the ground truth that much later.
+    let later = TumSequence::open_with(
+        SEQ,
+        TumConfig {
+            gt_time_offset: -0.008,
+            ..TumConfig::default()
+        },
+    )
+    .unwrap();
+    let f = later.load_frame(3).unwrap();
+    let expected = seq.gt_pose_at(f.stamp - 0.008).unwrap();
+    assert_eq!(f.gt_pose.unwrap(), expected);
+    assert_ne!(
+        f.gt_pose.unwrap(),
+        seq.load_frame(3).unwrap().gt_pose.unwrap()
+    );
 }
 
 #[test]

@@ -25,6 +25,10 @@ pub struct TumConfig {
     pub depth_scale: f64,
     /// Ground truth is `None` where its nearest sample is farther than this, seconds.
     pub max_gt_gap: f64,
+    /// Frames take the ground truth this many seconds after their colour stamps (negative:
+    /// before). 0, as the benchmark's tools read it; fr1_rpy's colour images fit the ground
+    /// truth best about 8 ms before their stamps (README, *Depth taken after the colour*).
+    pub gt_time_offset: f64,
 }
 
 impl Default for TumConfig {
@@ -34,6 +38,7 @@ impl Default for TumConfig {
             use_associations_file: true,
             depth_scale: 5000.0,
             max_gt_gap: 0.02,
+            gt_time_offset: 0.0,
         }
     }
 }
@@ -286,11 +291,12 @@ impl TumSequence {
         })
     }
 
-    /// Ground-truth pose at a timestamp (see [`Trajectory::pose_at`]).
+    /// Ground-truth pose at a timestamp, read `gt_time_offset` after it (see
+    /// [`Trajectory::pose_at`]).
     pub fn gt_pose_at(&self, stamp: f64) -> Option<Pose> {
         self.groundtruth
             .as_ref()
-            .and_then(|gt| gt.pose_at(stamp, self.config.max_gt_gap))
+            .and_then(|gt| gt.pose_at(stamp + self.config.gt_time_offset, self.config.max_gt_gap))
     }
 
     /// Decodes frame `index`'s RGB image.

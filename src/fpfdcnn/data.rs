@@ -53,6 +53,15 @@ pub struct SequenceSource {
     /// This sequence's validation share (`[data] val_fraction` when absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub val_fraction: Option<f64>,
+    /// The posed pairs read the ground truth this many milliseconds after each colour stamp
+    /// (negative: before; at most 100 either way). fr1_rpy's colour images fit the ground
+    /// truth best about 8 ms before their stamps (README, *Depth taken after the colour*).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub gt_time_offset_ms: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn default_camera() -> String {
@@ -750,6 +759,7 @@ mod tests {
                     homographies: 0,
                     frames: None,
                     val_fraction: None,
+                    gt_time_offset_ms: 0.0,
                 }],
                 ..cfg
             };
@@ -798,6 +808,7 @@ mod tests {
                     homographies: 0,
                     frames: None,
                     val_fraction: None,
+                    gt_time_offset_ms: 0.0,
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,
@@ -842,6 +853,7 @@ mod tests {
                 homographies: 0,
                 frames: None,
                 val_fraction: None,
+                gt_time_offset_ms: 0.0,
             }],
             sampling: Sampling::Resize,
             ..Default::default()
@@ -852,6 +864,53 @@ mod tests {
             .to_string();
         assert!(err.contains("640x480") && err.contains("320x240"), "{err}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_ground_truth_time_offset_moves_the_posed_matches_and_is_bounded() {
+        let path =
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let build = |gt_time_offset_ms: f64| {
+            let cfg = FpDataConfig {
+                sequences: vec![SequenceSource {
+                    path: path.clone(),
+                    camera: "fr1".into(),
+                    repeat: 1,
+                    homographies: 0,
+                    frames: None,
+                    val_fraction: None,
+                    gt_time_offset_ms,
+                }],
+                sampling: Sampling::Resize,
+                val_fraction: 0.5,
+                ..Default::default()
+            };
+            FpDataset::build(&cfg, [120, 160], |_| {})
+        };
+        let (at_stamps, _) = build(0.0).unwrap();
+        let (earlier, _) = build(-8.0).unwrap();
+        // The same corners of A, sent elsewhere in B: the camera turns fast in these frames.
+        let (mut same_a, mut moved) = (0, 0);
+        for (p, q) in at_stamps.pairs.iter().zip(&earlier.pairs) {
+            for m in &p.matches {
+                if let Some(n) = q.matches.iter().find(|n| n.a == m.a) {
+                    same_a += 1;
+                    let d = ((m.b[0] - n.b[0]).powi(2) + (m.b[1] - n.b[1]).powi(2)).sqrt();
+                    moved += (d > 0.5) as usize;
+                }
+            }
+        }
+        assert!(
+            same_a > 100 && 2 * moved > same_a,
+            "{moved} of {same_a} moved"
+        );
+        for bad in [150.0, f64::NAN] {
+            let err = build(bad).err().unwrap().to_string();
+            assert!(
+                err.contains("gt_time_offset_ms") && err.contains("tum_fr1_rpy_head10"),
+                "{err}"
+            );
+        }
     }
 
     #[test]
@@ -867,6 +926,7 @@ mod tests {
                     homographies: 0,
                     frames,
                     val_fraction,
+                    gt_time_offset_ms: 0.0,
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,

@@ -6,7 +6,7 @@ use super::data::{FpDataConfig, FpDataset, FrameEntry, PairEntry, Sampling, Sequ
 use super::data::{inside, resize_gray};
 use crate::camera::Camera;
 use crate::dataset::fp_pairs::{FpMatch, fp_pairs};
-use crate::dataset::tum::TumSequence;
+use crate::dataset::tum::{TumConfig, TumSequence};
 use crate::error::{Error, Result};
 use crate::raster::GrayF32;
 use rayon::prelude::*;
@@ -28,7 +28,20 @@ pub(super) fn open_source(
             "homographies must be at most 100 and needs sampling = \"crop\"",
         ));
     }
-    let mut seq = TumSequence::open(&src.path)?;
+    if !(src.gt_time_offset_ms.is_finite() && src.gt_time_offset_ms.abs() <= 100.0) {
+        return Err(Error::invalid(
+            &src.path,
+            format!(
+                "gt_time_offset_ms must be within [-100, 100], got {}",
+                src.gt_time_offset_ms
+            ),
+        ));
+    }
+    let config = TumConfig {
+        gt_time_offset: src.gt_time_offset_ms / 1000.0,
+        ..TumConfig::default()
+    };
+    let mut seq = TumSequence::open_with(&src.path, config)?;
     if let Some([first, end]) = src.frames {
         if first >= end || end > seq.len() {
             return Err(Error::invalid(

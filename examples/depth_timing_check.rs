@@ -10,18 +10,18 @@ use sdf_slam::slam::config::DenseConfig;
 use sdf_slam::slam::depth_alignment::{DepthModel, align};
 use std::sync::Arc;
 
-fn main() {
+fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
     let root = args
         .next()
-        .expect("usage: depth_timing_check SEQUENCE [CAMERA]");
-    let seq = TumSequence::open(&root).unwrap();
-    let cam = Camera::load(&args.next().unwrap_or_else(|| "fr1".into())).unwrap();
+        .ok_or_else(|| anyhow::anyhow!("usage: depth_timing_check SEQUENCE [CAMERA]"))?;
+    let seq = TumSequence::open(&root)?;
+    let cam = Camera::load(&args.next().unwrap_or_else(|| "fr1".into()))?;
     let rays = Arc::new(RayTable::new(&cam, 1));
     let cfg = DenseConfig::default();
     let range = (0.1, 6.0);
     let (mut sum_rgb, mut sum_depth, mut n) = (0.0, 0.0, 0);
-    for i in 0..seq.frames.len() - 1 {
+    for i in 0..seq.frames.len().saturating_sub(1) {
         let (a, b) = (&seq.frames[i], &seq.frames[i + 1]);
         let (Some(ta), Some(tb)) = (a.depth_stamp, b.depth_stamp) else {
             continue;
@@ -34,20 +34,16 @@ fn main() {
         ) else {
             continue;
         };
-        let fa = seq.load_frame(i).unwrap();
-        let fb = seq.load_frame(i + 1).unwrap();
-        let model =
-            DepthModel::new(fa.depth.as_ref().unwrap(), &cam, rays.clone(), 2, range).unwrap();
+        let (fa, fb) = (seq.load_frame(i)?, seq.load_frame(i + 1)?);
+        let (Some(depth_a), Some(depth_b)) = (fa.depth.as_ref(), fb.depth.as_ref()) else {
+            continue;
+        };
+        let Some(model) = DepthModel::new(depth_a, &cam, rays.clone(), 2, range) else {
+            anyhow::bail!("the camera does not fit the depth images of {root}");
+        };
         let by_rgb = ra.inverse() * rb;
         let by_depth = da.inverse() * db;
-        let Some(icp) = align(
-            &model,
-            fb.depth.as_ref().unwrap(),
-            None,
-            &by_rgb,
-            range,
-            &cfg,
-        ) else {
+        let Some(icp) = align(&model, depth_b, None, &by_rgb, range, &cfg) else {
             continue;
         };
         let e_rgb = rotation_angle(&(icp.pose.rotation.inverse() * by_rgb.rotation)).to_degrees();
@@ -68,7 +64,8 @@ fn main() {
     }
     println!(
         "pairs whose offsets differ by > 2 ms: {n}; mean ICP rotation error against GT at colour stamps {:.3} deg, at depth stamps {:.3} deg",
-        sum_rgb / n as f64,
-        sum_depth / n as f64
+        sum_rgb / n.max(1) as f64,
+        sum_depth / n.max(1) as f64
     );
+    Ok(())
 }

@@ -640,6 +640,19 @@ pub(super) fn inside(p: [f32; 2], w: usize, h: usize) -> bool {
 mod tests {
     use super::*;
 
+    /// A training sequence entry with every option at its default (fr1 camera).
+    fn source(path: impl Into<PathBuf>) -> SequenceSource {
+        SequenceSource {
+            path: path.into(),
+            camera: "fr1".into(),
+            repeat: 1,
+            homographies: 0,
+            frames: None,
+            val_fraction: None,
+            gt_time_offset_ms: 0.0,
+        }
+    }
+
     /// Frame B is frame A moved by `(dx, dy)`; matches follow the motion exactly.
     fn shifted_pair(dx: usize, dy: usize) -> FpDataset {
         let (w, h) = (160, 96);
@@ -752,15 +765,7 @@ mod tests {
             // `build`, which may be called without the config's check, refuses it before
             // reading any sequence.
             let cfg = FpDataConfig {
-                sequences: vec![SequenceSource {
-                    path: "no/such/sequence".into(),
-                    camera: "fr1".into(),
-                    repeat: 1,
-                    homographies: 0,
-                    frames: None,
-                    val_fraction: None,
-                    gt_time_offset_ms: 0.0,
-                }],
+                sequences: vec![source("no/such/sequence")],
                 ..cfg
             };
             let err = FpDataset::build(&cfg, [96, 128], |_| {}).err().unwrap();
@@ -802,13 +807,8 @@ mod tests {
         let build = |repeat: usize| {
             let cfg = FpDataConfig {
                 sequences: vec![SequenceSource {
-                    path: path.clone(),
-                    camera: "fr1".into(),
                     repeat,
-                    homographies: 0,
-                    frames: None,
-                    val_fraction: None,
-                    gt_time_offset_ms: 0.0,
+                    ..source(&path)
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,
@@ -847,13 +847,8 @@ mod tests {
             .unwrap();
         let cfg = FpDataConfig {
             sequences: vec![SequenceSource {
-                path: path.clone(),
                 camera: cam.display().to_string(),
-                repeat: 1,
-                homographies: 0,
-                frames: None,
-                val_fraction: None,
-                gt_time_offset_ms: 0.0,
+                ..source(&path)
             }],
             sampling: Sampling::Resize,
             ..Default::default()
@@ -873,13 +868,8 @@ mod tests {
         let build = |gt_time_offset_ms: f64| {
             let cfg = FpDataConfig {
                 sequences: vec![SequenceSource {
-                    path: path.clone(),
-                    camera: "fr1".into(),
-                    repeat: 1,
-                    homographies: 0,
-                    frames: None,
-                    val_fraction: None,
                     gt_time_offset_ms,
+                    ..source(&path)
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,
@@ -920,13 +910,9 @@ mod tests {
         let build = |frames: Option<[usize; 2]>, val_fraction: Option<f64>| {
             let cfg = FpDataConfig {
                 sequences: vec![SequenceSource {
-                    path: path.clone(),
-                    camera: "fr1".into(),
-                    repeat: 1,
-                    homographies: 0,
                     frames,
                     val_fraction,
-                    gt_time_offset_ms: 0.0,
+                    ..source(&path)
                 }],
                 sampling: Sampling::Resize,
                 val_fraction: 0.5,

@@ -292,7 +292,8 @@ impl TumSequence {
     }
 
     /// Ground-truth pose at a timestamp, read `gt_time_offset` after it (see
-    /// [`Trajectory::pose_at`]).
+    /// [`Trajectory::pose_at`]). `groundtruth` itself keeps the file's stamps: code that
+    /// reads it directly (the SLAM's ATE) does not see the offset.
     pub fn gt_pose_at(&self, stamp: f64) -> Option<Pose> {
         self.groundtruth
             .as_ref()

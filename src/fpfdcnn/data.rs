@@ -203,6 +203,13 @@ impl FpDataConfig {
                     s.path.display()
                 ));
             }
+            if !(s.gt_time_offset_ms.is_finite() && s.gt_time_offset_ms.abs() <= 100.0) {
+                return Err(format!(
+                    "data.sequences {}: gt_time_offset_ms must be within [-100, 100], got {}",
+                    s.path.display(),
+                    s.gt_time_offset_ms
+                ));
+            }
             if let Some([first, end]) = s.frames
                 && first >= end
             {

@@ -99,6 +99,9 @@ pub struct TrackingReport {
     /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
     #[serde(default)]
     pub fused_kept: usize,
+    /// `tracking.sync_depth`: frames whose depth was re-registered to its colour instant.
+    #[serde(default)]
+    pub depth_synced: usize,
 }
 
 /// Everything `report.json` holds.
@@ -217,6 +220,7 @@ impl Report {
                 dense_kept: t.dense_kept,
                 dense_rejected: t.dense_rejected,
                 fused_kept: t.fused_kept,
+                depth_synced: t.depth_synced,
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
@@ -307,6 +311,13 @@ impl Report {
                 s,
                 "| dense refinement | kept for {} frames, not kept for {} |",
                 self.tracking.dense_kept, self.tracking.dense_rejected
+            );
+        }
+        if self.tracking.depth_synced > 0 {
+            let _ = writeln!(
+                s,
+                "| depth moved to the colour instant | {} frames |",
+                self.tracking.depth_synced
             );
         }
         let _ = writeln!(
@@ -546,6 +557,13 @@ impl Report {
                 s,
                 "dense refinement kept for {} frames ({} against the fused surface), not kept for {}",
                 self.tracking.dense_kept, self.tracking.fused_kept, self.tracking.dense_rejected
+            );
+        }
+        if self.tracking.depth_synced > 0 {
+            let _ = writeln!(
+                s,
+                "depth moved to its colour image's instant on {} frames",
+                self.tracking.depth_synced
             );
         }
         let _ = writeln!(s, "speed {:.2} frames/s overall; per stage:", self.fps);

@@ -191,6 +191,10 @@ pub struct TrackingCounters {
     /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
     #[serde(default)]
     pub fused_kept: usize,
+    /// `tracking.sync_depth`: frames whose depth was re-registered to its colour image's
+    /// instant.
+    #[serde(default)]
+    pub depth_synced: usize,
 }
 
 /// `dense.fused_model`: the fused surface is seen and fused at every this many pixels.
@@ -274,6 +278,8 @@ impl Tracker {
             Some(l) => (l.pose, l.index, Some(l.stamp)),
             None => (self.keyframes[reference].pose, input.index, None),
         };
+        // The last frame's pose was tracked, not guessed (a lost frame keeps a prediction).
+        let last_tracked = self.lost_streak == 0;
         // Constant velocity, scaled by the frame gap (skipped frames).
         let gap = input.index.saturating_sub(last_index).max(1);
         let mut predicted = last_pose;
@@ -314,7 +320,11 @@ impl Tracker {
         let mut pose = result.pose.inverse();
         // `tracking.sync_depth`: from here on the frame's depth is the one seen at its colour
         // image's instant, by this frame's motion since the last.
-        let synced = last_stamp.and_then(|t| self.sync_depth(&input, &last_pose, t, &pose));
+        // Only between two tracked frames: after a loss or a relocalisation the step holds a
+        // correction, not the camera's motion.
+        let synced = last_stamp
+            .filter(|_| last_tracked && status == FrameStatus::Tracked)
+            .and_then(|t| self.sync_depth(&input, &last_pose, t, &pose));
         let input = TrackInput {
             depth: synced.as_ref().or(input.depth),
             ..input
@@ -585,9 +595,6 @@ impl Tracker {
         }
     }
 
-    /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
-    /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
-    /// off, before anything is fused, or when the alignment fails or disagrees.
     /// `tracking.sync_depth` (RGB-D): the frame's depth re-registered to its colour image's
     /// instant, the camera's motion over the stamps' offset taken from this frame's step since
     /// the last (`last_pose` at `last_stamp` to `pose`); `None` when it is off, the offset is
@@ -606,9 +613,14 @@ impl Tracker {
         let rays = self
             .rays
             .get_or_insert_with(|| Arc::new(RayTable::new(camera, 1)));
-        depth_sync::register(depth, camera, rays, &motion)
+        let synced = depth_sync::register(depth, camera, rays, &motion);
+        self.counters.depth_synced += synced.is_some() as usize;
+        synced
     }
 
+    /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
+    /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
+    /// off, before anything is fused, or when the alignment fails or disagrees.
     fn refine_fused(&mut self, frame: &DepthImage, pose: &Pose) -> Option<Pose> {
         let cfg = &self.cfg.dense;
         let (tsdf, rays) = self.fused.as_ref()?;

@@ -647,6 +647,23 @@ pub(super) fn inside(p: [f32; 2], w: usize, h: usize) -> bool {
 mod tests {
     use super::*;
 
+    /// The ten-frame fr1_rpy fixture.
+    fn fixture() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10")
+    }
+
+    /// Training and validation splits of one sequence entry, whole frames resized to
+    /// 120x160, half of each sequence for validation.
+    fn build_one(source: SequenceSource) -> Result<(FpDataset, FpDataset)> {
+        let cfg = FpDataConfig {
+            sequences: vec![source],
+            sampling: Sampling::Resize,
+            val_fraction: 0.5,
+            ..Default::default()
+        };
+        FpDataset::build(&cfg, [120, 160], |_| {})
+    }
+
     /// A training sequence entry with every option at its default (fr1 camera).
     fn source(path: impl Into<PathBuf>) -> SequenceSource {
         SequenceSource {
@@ -809,19 +826,12 @@ mod tests {
 
     #[test]
     fn repeat_weights_a_sequence_without_loading_it_twice() {
-        let path =
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let path = fixture();
         let build = |repeat: usize| {
-            let cfg = FpDataConfig {
-                sequences: vec![SequenceSource {
-                    repeat,
-                    ..source(&path)
-                }],
-                sampling: Sampling::Resize,
-                val_fraction: 0.5,
-                ..Default::default()
-            };
-            FpDataset::build(&cfg, [120, 160], |_| {})
+            build_one(SequenceSource {
+                repeat,
+                ..source(&path)
+            })
         };
         let (once, val_once) = build(1).unwrap();
         let (thrice, val_thrice) = build(3).unwrap();
@@ -870,19 +880,12 @@ mod tests {
 
     #[test]
     fn a_ground_truth_time_offset_moves_the_posed_matches_and_is_bounded() {
-        let path =
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let path = fixture();
         let build = |gt_time_offset_ms: f64| {
-            let cfg = FpDataConfig {
-                sequences: vec![SequenceSource {
-                    gt_time_offset_ms,
-                    ..source(&path)
-                }],
-                sampling: Sampling::Resize,
-                val_fraction: 0.5,
-                ..Default::default()
-            };
-            FpDataset::build(&cfg, [120, 160], |_| {})
+            build_one(SequenceSource {
+                gt_time_offset_ms,
+                ..source(&path)
+            })
         };
         let (at_stamps, _) = build(0.0).unwrap();
         let (earlier, _) = build(-8.0).unwrap();
@@ -912,20 +915,13 @@ mod tests {
 
     #[test]
     fn a_frame_range_keeps_the_other_frames_out_of_both_splits() {
-        let path =
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/tum_fr1_rpy_head10");
+        let path = fixture();
         let build = |frames: Option<[usize; 2]>, val_fraction: Option<f64>| {
-            let cfg = FpDataConfig {
-                sequences: vec![SequenceSource {
-                    frames,
-                    val_fraction,
-                    ..source(&path)
-                }],
-                sampling: Sampling::Resize,
-                val_fraction: 0.5,
-                ..Default::default()
-            };
-            FpDataset::build(&cfg, [120, 160], |_| {})
+            build_one(SequenceSource {
+                frames,
+                val_fraction,
+                ..source(&path)
+            })
         };
         let (train, val) = build(None, None).unwrap();
         assert_eq!((train.frames.len(), val.frames.len()), (5, 5));

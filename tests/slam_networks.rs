@@ -12,7 +12,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
-use sdf_slam::slam::map::points_from_depth;
+use sdf_slam::slam::map::{KeypointDepth, points_from_depth};
 use sdf_slam::slam::output::write_outputs;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
@@ -253,7 +253,7 @@ fn monocular_mode_tracks_with_sdfcnn_depth() {
         &kf.track.features,
         Some(&depth),
         &camera,
-        (cfg.tracking.min_depth, cfg.tracking.max_depth),
+        KeypointDepth::from_config(&cfg.tracking),
     );
     assert!(kf.track.n_points() > 20, "{}", kf.track.n_points());
     assert_eq!(kf.track.points_cam, expected);

@@ -5,7 +5,9 @@
 
 use super::config::SlamConfig;
 use super::depth_edges::drop_depth_edges;
-use super::map::{KeyFrame, KeyframeFeatures, KeyframeView, Map, SharedMap, read, write};
+use super::map::{
+    KeyFrame, KeyframeFeatures, KeyframeView, KeypointDepth, Map, SharedMap, read, write,
+};
 use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
@@ -121,7 +123,7 @@ impl LocalMapper {
                 kf.track.features.clone(),
                 Some(&depth),
                 &self.camera,
-                (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth),
+                KeypointDepth::from_config(&self.cfg.tracking),
             ))
         } else {
             kf.track.clone()

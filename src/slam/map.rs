@@ -4,6 +4,8 @@
 //! inserts them, correction adds constraints and corrects their poses; the
 //! threads share it as [`SharedMap`].
 
+use super::config::TrackingConfig;
+use super::depth_edges::EdgeWindow;
 use super::keypoints::KeyFeatures;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
@@ -26,14 +28,14 @@ pub struct KeyframeFeatures {
 }
 
 impl KeyframeFeatures {
-    /// Features with 3D points from a depth image (`None` outside `[min, max]`).
+    /// Features with 3D points from a depth image, where `gate` takes the reading.
     pub fn new(
         features: KeyFeatures,
         depth: Option<&DepthImage>,
         camera: &Camera,
-        depth_range: (f64, f64),
+        gate: KeypointDepth,
     ) -> Self {
-        let points_cam = points_from_depth(&features, depth, camera, depth_range);
+        let points_cam = points_from_depth(&features, depth, camera, gate);
         let signature = features.mean_descriptor();
         KeyframeFeatures {
             features,
@@ -48,20 +50,49 @@ impl KeyframeFeatures {
     }
 }
 
-/// Back-projects keypoints with the depth at their nearest pixel (eq 9 inverted).
+/// Which depth readings give a keypoint its 3D point (eqs 9-10).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeypointDepth {
+    /// Readings outside `[min, max]` metres give none.
+    pub range: (f64, f64),
+    /// With a test ([`EdgeWindow`]), neither does a reading on a depth discontinuity.
+    pub edge: Option<EdgeWindow>,
+}
+
+impl KeypointDepth {
+    /// `tracking.min_depth`, `max_depth` and the `keypoint_edge_*` test.
+    pub fn from_config(t: &TrackingConfig) -> Self {
+        KeypointDepth {
+            range: (t.min_depth, t.max_depth),
+            edge: EdgeWindow::new(t.keypoint_edge_reach, t.keypoint_edge_ratio),
+        }
+    }
+
+    /// The reading at the pixel nearest to `(x, y)`, when the gate takes it.
+    pub fn at(&self, depth: &DepthImage, x: f64, y: f64) -> Option<f32> {
+        let d = depth.at(x, y)?;
+        let (min, max) = self.range;
+        ((d as f64) >= min && (d as f64) <= max)
+            .then_some(d)
+            .filter(|_| !self.edge.is_some_and(|e| e.straddles(depth, x, y)))
+    }
+}
+
+/// Back-projects each keypoint with the reading at its nearest pixel where `gate` takes it
+/// (eq 9 inverted).
 pub fn points_from_depth(
     features: &KeyFeatures,
     depth: Option<&DepthImage>,
     camera: &Camera,
-    (min, max): (f64, f64),
+    gate: KeypointDepth,
 ) -> Vec<Option<Point3<f64>>> {
     features
         .points
         .iter()
         .map(|p| {
-            let d = depth?.at(p[0] as f64, p[1] as f64)? as f64;
-            (d >= min && d <= max)
-                .then(|| camera.back_project(&Point2::new(p[0] as f64, p[1] as f64), d))
+            let (x, y) = (p[0] as f64, p[1] as f64);
+            let d = gate.at(depth?, x, y)? as f64;
+            Some(camera.back_project(&Point2::new(x, y), d))
         })
         .collect()
 }
@@ -242,4 +273,49 @@ pub fn read(map: &SharedMap) -> RwLockReadGuard<'_, Map> {
 /// Writes the shared map.
 pub fn write(map: &SharedMap) -> RwLockWriteGuard<'_, Map> {
     map.write().unwrap_or_else(|e| e.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keypoints_on_a_depth_step_get_no_point_when_the_edge_test_is_on() {
+        let camera = Camera::pinhole(640, 480, 525.0, 525.0, 319.5, 239.5);
+        let (w, h) = (camera.width, camera.height);
+        // A box side at 1.2 m left of column 320, the wall at 2.4 m right of it.
+        let mut depth = DepthImage::new(w, h);
+        for (i, d) in depth.data.iter_mut().enumerate() {
+            *d = if (i as u32 % w) < 320 { 1.2 } else { 2.4 };
+        }
+        let features = KeyFeatures {
+            points: vec![
+                [100.0, 200.0],
+                [319.4, 200.0],
+                [321.0, 240.0],
+                [500.0, 100.0],
+            ],
+            descriptors: vec![0.0; 4],
+            dim: 1,
+        };
+        let mut gate = KeypointDepth::from_config(&TrackingConfig::default());
+        assert_eq!(gate.edge, None, "off by default");
+        let all = points_from_depth(&features, Some(&depth), &camera, gate);
+        assert!(all.iter().all(|p| p.is_some()));
+        gate.edge = EdgeWindow::new(3, 0.05);
+        let kept = points_from_depth(&features, Some(&depth), &camera, gate);
+        let some: Vec<bool> = kept.iter().map(|p| p.is_some()).collect();
+        assert_eq!(some, [true, false, false, true]);
+        assert_eq!(kept[0], all[0]);
+        assert_eq!(kept[3], all[3]);
+        // The depth range still applies, and no depth image gives no points.
+        gate.range = (0.1, 2.0);
+        let near = points_from_depth(&features, Some(&depth), &camera, gate);
+        assert!(near[0].is_some() && near[3].is_none());
+        assert!(
+            points_from_depth(&features, None, &camera, gate)
+                .iter()
+                .all(|p| p.is_none())
+        );
+    }
 }

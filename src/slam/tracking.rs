@@ -19,7 +19,7 @@ use super::config::{LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
 use super::depth_sync;
 use super::keypoints::{KeyFeatures, similarity};
-use super::map::{KeyframeFeatures, ViewBounds, points_from_depth};
+use super::map::{KeyframeFeatures, KeypointDepth, ViewBounds, points_from_depth};
 use super::tsdf::{Tsdf, TsdfParams};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
@@ -248,6 +248,11 @@ impl Tracker {
         (self.cfg.tracking.min_depth, self.cfg.tracking.max_depth)
     }
 
+    /// Which readings give a keypoint its 3D point.
+    fn keypoint_depth(&self) -> KeypointDepth {
+        KeypointDepth::from_config(&self.cfg.tracking)
+    }
+
     /// Monocular mode: the keyframe's 3D points from predicted depth, sent back by
     /// the mapping stage (Fig. 1: "passes depth information to the camera pose
     /// module").
@@ -346,6 +351,7 @@ impl Tracker {
         }
         // The PnP inliers against the reference keyframe: they decide on a new keyframe
         // and, kept in the frame's record, refine it after bundle adjustment.
+        let gate = self.keypoint_depth();
         let observations: Vec<FrameObservation> = (0..corr.world.len())
             .filter(|&k| result.inliers[k] && corr.from_reference[k])
             .map(|k| {
@@ -356,7 +362,7 @@ impl Tracker {
                     depth: input
                         .depth
                         .filter(|_| !self.monocular)
-                        .and_then(|d| d.at(pixel[0] as f64, pixel[1] as f64)),
+                        .and_then(|d| gate.at(d, pixel[0] as f64, pixel[1] as f64)),
                 }
             })
             .collect();
@@ -372,15 +378,10 @@ impl Tracker {
             }
             w
         } else {
-            points_from_depth(
-                &input.features,
-                input.depth,
-                &self.camera,
-                self.depth_range(),
-            )
-            .into_iter()
-            .map(|p| p.map(|p| pose * p))
-            .collect()
+            points_from_depth(&input.features, input.depth, &self.camera, gate)
+                .into_iter()
+                .map(|p| p.map(|p| pose * p))
+                .collect()
         };
         self.velocity = renormalized(&(last_pose.inverse() * pose));
         let kf_pose = self.keyframes[reference_now].pose;
@@ -497,7 +498,7 @@ impl Tracker {
             input.features.clone(),
             depth,
             &self.camera,
-            self.depth_range(),
+            self.keypoint_depth(),
         ));
         let world = data
             .points_cam

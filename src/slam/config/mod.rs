@@ -246,6 +246,12 @@ pub struct TrackingConfig {
     /// motion between the two stamps, at the frame's own velocity
     /// ([`crate::slam::depth_sync`]; TUM's Kinect streams are not synchronised).
     pub sync_depth: bool,
+    /// A keypoint whose depth reading lies on a depth discontinuity, by the test of
+    /// [`crate::slam::depth_edges`] over `keypoint_edge_reach` pixels, gets no 3D point
+    /// (neither as a keyframe's point nor as a frame's depth observation; a ratio or a reach
+    /// of 0: off).
+    pub keypoint_edge_ratio: f32,
+    pub keypoint_edge_reach: u32,
 }
 
 impl Default for TrackingConfig {
@@ -259,6 +265,8 @@ impl Default for TrackingConfig {
             reinitialise_after: 10,
             start_at_ground_truth: true,
             sync_depth: false,
+            keypoint_edge_ratio: 0.0,
+            keypoint_edge_reach: 3,
         }
     }
 }
@@ -794,6 +802,9 @@ mod tests {
             ("features", "orb_scale_factor", "nan"),
             ("features", "top_k", "100000000"),
             ("pnp", "max_iterations", "0"),
+            ("tracking", "keypoint_edge_ratio", "nan"),
+            ("tracking", "keypoint_edge_ratio", "-0.1"),
+            ("tracking", "keypoint_edge_reach", "65"),
             ("system", "queue", "0"),
             ("system", "feature_workers", "17"),
             ("map", "min_views", "0"),

@@ -149,6 +149,19 @@ impl SlamConfig {
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
         }
+        let t = &self.tracking;
+        if !(0.0..=10.0).contains(&t.keypoint_edge_ratio) {
+            return Err(format!(
+                "tracking.keypoint_edge_ratio must be in [0, 10] (0: off), got {}",
+                t.keypoint_edge_ratio
+            ));
+        }
+        count(
+            t.keypoint_edge_reach as usize,
+            0,
+            64,
+            "tracking.keypoint_edge_reach",
+        )?;
         Ok(())
     }
 

@@ -22,12 +22,15 @@ impl DepthImage {
         }
     }
 
-    /// Depth at integer pixel `(x, y)`; `None` outside the image or without a reading.
+    /// Depth at integer pixel `(x, y)`; `None` outside the image, without a reading, or
+    /// beyond `data` when it holds fewer than `width * height` values.
     pub fn get(&self, x: i64, y: i64) -> Option<f32> {
         if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
             return None;
         }
-        let d = self.data[(y as u64 * self.width as u64 + x as u64) as usize];
+        let d = *self
+            .data
+            .get((y as u64 * self.width as u64 + x as u64) as usize)?;
         (d > 0.0).then_some(d)
     }
 
@@ -137,5 +140,9 @@ mod tests {
         // Data that do not match the size give zeros, not a panic.
         d.data.truncate(4);
         assert!(d.subsample(2).data.iter().all(|v| *v == 0.0));
+        // Nor does reading past them: pixel (1, 0) is there, (4, 2) is not.
+        assert_eq!(d.get(1, 0), Some(1.0));
+        assert_eq!(d.get(4, 2), None);
+        assert_eq!(d.at(4.2, 1.8), None);
     }
 }

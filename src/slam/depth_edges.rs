@@ -13,30 +13,21 @@ use crate::dataset::DepthImage;
 /// `|1/d₋ + 1/d₊ − 2/d|`, times `d`, exceeds `max_ratio`. A plane has an inverse depth
 /// affine in the pixel coordinates, so a slanted floor or a wall seen at a grazing angle
 /// scores 0 however steep its depth gradient; a pixel between a near and a far surface
-/// does not. `max_ratio <= 0` or `reach == 0` leaves the image as it is. Returns how many
-/// pixels were dropped.
+/// does not. `max_ratio <= 0`, `reach == 0`, or data that do not hold `width * height`
+/// values leave the image as it is. Returns how many pixels were dropped.
 pub fn drop_depth_edges(depth: &mut DepthImage, reach: u32, max_ratio: f32) -> usize {
-    if max_ratio <= 0.0 || reach == 0 {
+    let Some(test) = EdgeWindow::new(reach, max_ratio) else {
+        return 0;
+    };
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    if depth.data.len() as i64 != w * h {
         return 0;
     }
-    let (w, h, r) = (depth.width as i64, depth.height as i64, reach as i64);
     let src = depth.data.clone();
-    let at = |x: i64, y: i64| -> Option<f32> {
-        (x >= 0 && y >= 0 && x < w && y < h)
-            .then(|| src[(y * w + x) as usize])
-            .filter(|&d| d > 0.0)
-    };
     let mut dropped = 0;
     for y in 0..h {
         for x in 0..w {
-            let Some(d) = at(x, y) else { continue };
-            let edge = [(r, 0), (0, r)].iter().any(|&(dx, dy)| {
-                match (at(x - dx, y - dy), at(x + dx, y + dy)) {
-                    (Some(a), Some(b)) => (1.0 / a + 1.0 / b - 2.0 / d).abs() * d > max_ratio,
-                    _ => false,
-                }
-            });
-            if edge {
+            if test.at_pixel(&src, (w, h), x, y) {
                 depth.data[(y * w + x) as usize] = 0.0;
                 dropped += 1;
             }
@@ -70,16 +61,21 @@ impl EdgeWindow {
     /// nor does any pixel of an image whose data does not hold `width * height` values.
     pub fn straddles(&self, depth: &DepthImage, x: f64, y: f64) -> bool {
         let (w, h) = (depth.width as i64, depth.height as i64);
-        if depth.data.len() as i64 != w * h {
-            return false;
-        }
+        depth.data.len() as i64 == w * h
+            && self.at_pixel(&depth.data, (w, h), x.round() as i64, y.round() as i64)
+    }
+
+    /// The test at integer pixel `(x, y)` of a row-major `w` x `h` image whose `data` hold
+    /// `w * h` values.
+    #[inline]
+    fn at_pixel(&self, data: &[f32], (w, h): (i64, i64), x: i64, y: i64) -> bool {
         let at = |x: i64, y: i64| -> Option<f32> {
             (x >= 0 && y >= 0 && x < w && y < h)
-                .then(|| depth.data[(y * w + x) as usize])
+                .then(|| data[(y * w + x) as usize])
                 .filter(|&d| d > 0.0)
         };
-        let (x, y, r) = (x.round() as i64, y.round() as i64, self.reach as i64);
         let Some(d) = at(x, y) else { return false };
+        let r = self.reach as i64;
         [(r, 0), (0, r)]
             .iter()
             .any(|&(dx, dy)| match (at(x - dx, y - dy), at(x + dx, y + dy)) {

@@ -89,18 +89,23 @@ impl EdgeWindow {
 mod tests {
     use super::*;
 
+    /// A `w` x `h` depth image with `depth(x, y)` at each pixel.
+    fn image(w: u32, h: u32, depth: impl Fn(u32, u32) -> f32) -> DepthImage {
+        let mut img = DepthImage::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                img.data[(y * w + x) as usize] = depth(x, y);
+            }
+        }
+        img
+    }
+
     #[test]
     fn drops_the_boundary_of_a_step_and_keeps_slanted_planes() {
         // Left half at 1 m, right half at 2 m, blurred over 4 px as an upsampled
         // prediction would be.
         let (w, h) = (40u32, 10u32);
-        let mut img = DepthImage::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let t = ((x as f32 - 18.0) / 4.0).clamp(0.0, 1.0);
-                img.data[(y * w + x) as usize] = 1.0 + t;
-            }
-        }
+        let img = image(w, h, |x, _| 1.0 + ((x as f32 - 18.0) / 4.0).clamp(0.0, 1.0));
         let mut f = img.clone();
         let n = drop_depth_edges(&mut f, 3, 0.05);
         assert!(n > 0 && n < (w * h) as usize / 2, "{n}");
@@ -112,12 +117,7 @@ mod tests {
         }
         // A floor seen at a grazing angle: inverse depth affine in y, depth from 0.8 m to
         // 8 m down the image. Every pixel stays.
-        let mut floor = DepthImage::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                floor.data[(y * w + x) as usize] = 1.0 / (0.125 + 0.125 * y as f32);
-            }
-        }
+        let mut floor = image(w, h, |_, y| 1.0 / (0.125 + 0.125 * y as f32));
         let before = floor.data.clone();
         assert_eq!(drop_depth_edges(&mut floor, 3, 0.05), 0);
         assert_eq!(floor.data, before);
@@ -132,19 +132,11 @@ mod tests {
         // A box edge: 1.2 m left of x = 20, 2.0 m right of it, a hole of no readings at
         // x = 30..33 on the far side.
         let (w, h) = (40u32, 12u32);
-        let mut step = DepthImage::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let d = if x < 20 {
-                    1.2
-                } else if (30..33).contains(&x) {
-                    0.0
-                } else {
-                    2.0
-                };
-                step.data[(y * w + x) as usize] = d;
-            }
-        }
+        let step = image(w, h, |x, _| match x {
+            0..20 => 1.2,
+            30..33 => 0.0,
+            _ => 2.0,
+        });
         let win = EdgeWindow::new(3, 0.05).unwrap();
         for x in 17..=22 {
             assert!(win.straddles(&step, x as f64, 6.0), "x = {x}");
@@ -160,12 +152,7 @@ mod tests {
         assert!(!win.straddles(&step, 0.0, 0.0));
         assert!(!win.straddles(&step, 39.4, 11.4));
         // A floor at a grazing angle (inverse depth affine in y, 0.8 m to 7.3 m): no edge.
-        let mut floor = DepthImage::new(w, 100);
-        for y in 0..100u32 {
-            for x in 0..w {
-                floor.data[(y * w + x) as usize] = 1.0 / (1.25 - 0.01125 * y as f32);
-            }
-        }
+        let floor = image(w, 100, |_, y| 1.0 / (1.25 - 0.01125 * y as f32));
         assert!((0..100).all(|y| !win.straddles(&floor, 20.0, y as f64)));
         // Off, and a malformed image: no test, no panic.
         assert!(EdgeWindow::new(3, 0.0).is_none() && EdgeWindow::new(0, 0.05).is_none());

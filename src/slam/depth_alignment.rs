@@ -312,6 +312,18 @@ pub struct Alignment {
     pub rms: f64,
 }
 
+impl Alignment {
+    /// Whether an alignment started from `initial` passes the keyframe edges' gates
+    /// (`dense.edge_*`): it pairs `edge_min_inlier_fraction` of the frame's points and moves
+    /// `initial` by at most `edge_agree_translation` and `edge_agree_rotation_deg`.
+    pub fn passes_edge_gates(&self, initial: &Pose, cfg: &DenseConfig) -> bool {
+        let change = initial.inverse() * self.pose;
+        self.inliers as f64 >= cfg.edge_min_inlier_fraction * self.points as f64
+            && change.translation.vector.norm() <= cfg.edge_agree_translation
+            && change.rotation.angle().to_degrees() <= cfg.edge_agree_rotation_deg
+    }
+}
+
 /// Refines `initial` (`T_kf_frame`) by point-to-plane ICP of the frame's depth against
 /// `model`, one level per entry of `cfg.levels` (frame pixels sampled every `step` pixels of
 /// the camera's image, pairs farther apart than `max_distance` dropped). `depth` is sampled
@@ -1142,5 +1154,34 @@ pub(crate) mod tests {
         let rays = Arc::new(RayTable::new(&camera, 1));
         assert!(DepthModel::new(&small, &camera, rays, 1, range).is_none());
         assert!(align(&model, &small, None, &Pose::identity(), range, &cfg).is_none());
+    }
+
+    #[test]
+    fn edge_gates_bound_the_inliers_and_the_change() {
+        let cfg = DenseConfig {
+            edge_min_inlier_fraction: 0.5,
+            edge_agree_translation: 0.1,
+            edge_agree_rotation_deg: 6.0,
+            ..DenseConfig::default()
+        };
+        let initial = Pose::from_parts(
+            Translation3::new(0.3, 0.0, 0.1),
+            UnitQuaternion::from_euler_angles(0.0, 0.2, 0.0),
+        );
+        let found = |dx: f64, turn_deg: f64, inliers: usize| Alignment {
+            pose: initial
+                * Pose::from_parts(
+                    Translation3::new(dx, 0.0, 0.0),
+                    UnitQuaternion::from_euler_angles(turn_deg.to_radians(), 0.0, 0.0),
+                ),
+            inliers,
+            points: 1000,
+            rms: 0.01,
+        };
+        assert!(found(0.09, 5.0, 500).passes_edge_gates(&initial, &cfg));
+        assert!(!found(0.09, 5.0, 499).passes_edge_gates(&initial, &cfg));
+        assert!(!found(0.11, 0.0, 1000).passes_edge_gates(&initial, &cfg));
+        assert!(!found(0.0, 6.5, 1000).passes_edge_gates(&initial, &cfg));
+        assert!(!found(f64::NAN, 0.0, 1000).passes_edge_gates(&initial, &cfg));
     }
 }

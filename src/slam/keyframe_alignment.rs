@@ -136,23 +136,17 @@ pub fn keyframe_edges(
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
                     let depth = &map.keyframes[j].view.depth;
                     let found = align(&model, depth, intensities.get(j), &initial, range, d)?;
-                    if (found.inliers as f64) < d.edge_min_inlier_fraction * found.points as f64 {
-                        return None;
-                    }
-                    let change = initial.inverse() * found.pose;
-                    let moved = change.translation.vector.norm();
-                    (moved <= d.edge_agree_translation
-                        && change.rotation.angle().to_degrees() <= d.edge_agree_rotation_deg)
-                        .then(|| {
-                            let edge = Edge {
-                                i: *i,
-                                j,
-                                measurement: found.pose,
-                                information,
-                                robust: d.robust_edges,
-                            };
-                            (edge, moved, is_loop)
-                        })
+                    let moved = (initial.inverse() * found.pose).translation.vector.norm();
+                    found.passes_edge_gates(&initial, d).then(|| {
+                        let edge = Edge {
+                            i: *i,
+                            j,
+                            measurement: found.pose,
+                            information,
+                            robust: d.robust_edges,
+                        };
+                        (edge, moved, is_loop)
+                    })
                 })
                 .collect()
         })

@@ -1,7 +1,8 @@
 //! Whether a sequence's ground truth agrees with its own depth images when the camera comes
 //! back: frame pairs taken every `STEP` frames of `FIRST..LAST`, each pair's relative pose
 //! refined by the SLAM's depth alignment (`slam::depth_alignment`: point-to-plane ICP of B's
-//! depth against A's, the keyframe alignments' settings, gates and half-resolution depth),
+//! depth against A's, the keyframe alignments' settings and gates, on the sensor's depth at
+//! every `map.pixel_stride`-th pixel, without the map's depth-edge filter),
 //! started from the ground truth. How far the alignment moves the ground truth's relative
 //! pose, for pairs `STEP` frames apart (the sensor's and the ground truth's frame-to-frame
 //! noise) and for pairs at least `LONG` frames apart that still see the same surfaces (a
@@ -95,6 +96,15 @@ fn main() -> anyhow::Result<()> {
         let (Some(gt), Some(depth)) = (frame.gt_pose, frame.depth) else {
             continue;
         };
+        if (depth.width, depth.height) != (camera.width, camera.height) {
+            bail!(
+                "frame {index}'s depth is {}x{} but the camera is {}x{}",
+                depth.width,
+                depth.height,
+                camera.width,
+                camera.height
+            );
+        }
         samples.push(Sample {
             index,
             stamp: frame.stamp,
@@ -170,7 +180,9 @@ fn main() -> anyhow::Result<()> {
             }
             let n = dt.len();
             let ((tm, tr), (rm, rr)) = (stats(dt), stats(dr));
-            if n > 0 {
+            if n == 0 && pairs.iter().any(|p| (lo..hi).contains(&(p.b - p.a))) {
+                println!("| {name}, {label} | 0 | no pose at these frames' stamps | |");
+            } else if n > 0 {
                 println!("| {name}, {label} | {n} | {tm:.1} / {tr:.1} | {rm:.2} / {rr:.2} |");
             }
         }

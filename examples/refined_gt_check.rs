@@ -3,8 +3,9 @@
 //! `(i, i + GAP)` in `FIRST..LAST`, scored as `eval matching` scores them (A's depth, the
 //! camera with distortion, correct within 5 px) against the ground truth's relative pose and
 //! against that pose refined by the SLAM's depth alignment (`slam::depth_alignment`, the
-//! keyframe alignments' settings and gates at half resolution; the ground truth where the
-//! alignment fails its gates). ORB takes no part in either pose, so the pose its matches fit
+//! keyframe alignments' settings and gates, on the sensor's depth at every
+//! `map.pixel_stride`-th pixel, without the map's depth-edge filter; the ground truth where
+//! the alignment fails its gates). ORB takes no part in either pose, so the pose its matches fit
 //! better is the closer to the colour images' motion (README, *Does the ground truth close
 //! its own loops*).
 //!
@@ -12,10 +13,12 @@
 
 use anyhow::bail;
 use sdf_slam::camera::{Camera, RayTable};
+use sdf_slam::dataset::DepthImage;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::features::bf_matcher::matched_pixels;
 use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
 use sdf_slam::geometry::Pose;
+use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
 use sdf_slam::slam::depth_alignment::{DepthModel, align};
@@ -37,9 +40,10 @@ fn main() -> anyhow::Result<()> {
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let stride = cfg.map.pixel_stride;
     let rays = Arc::new(RayTable::new(&camera, stride));
+    let view = |depth: &DepthImage| depth.subsample(stride);
     let orb = OrbConfig::default();
-    // [ground truth, refined]: correct, judged.
-    let mut counts = [[0usize; 2]; 2];
+    // Under the ground truth's relative pose, and under the refined one.
+    let mut scores: [Vec<MatchingAccuracy>; 2] = Default::default();
     let (mut refined_pairs, mut pairs) = (0, 0);
     for i in first..last.saturating_sub(gap) {
         let (a, b) = (seq.load_frame(i)?, seq.load_frame(i + gap)?);
@@ -48,43 +52,51 @@ fn main() -> anyhow::Result<()> {
         else {
             continue;
         };
+        if (depth_a.width, depth_a.height) != (camera.width, camera.height) {
+            bail!(
+                "frame {i}'s depth is {}x{} but the camera is {}x{}",
+                depth_a.width,
+                depth_a.height,
+                camera.width,
+                camera.height
+            );
+        }
         pairs += 1;
         let gt = pa.inverse() * pb;
         let refined = DepthModel::new(
-            &depth_a.subsample(stride),
+            &view(depth_a),
             &camera,
             rays.clone(),
             dense.model_step,
             range,
         )
-        .and_then(|model| align(&model, &depth_b.subsample(stride), None, &gt, range, dense))
+        .and_then(|model| align(&model, &view(depth_b), None, &gt, range, dense))
         .filter(|found| found.passes_edge_gates(&gt, dense))
         .map(|found| found.pose);
         refined_pairs += refined.is_some() as usize;
-        let poses: [Pose; 2] = [gt, refined.unwrap_or(gt)];
         let fa = detect_and_compute(&rgb_to_gray(&a.rgb), &orb)?;
         let fb = detect_and_compute(&rgb_to_gray(&b.rgb), &orb)?;
-        for (xa, xb) in matched_pixels(&fa, &fb) {
-            let Some(z) = depth_a.at(xa.x, xa.y) else {
-                continue;
-            };
-            let p = camera.back_project(&xa, z as f64);
-            for (k, t_ab) in poses.iter().enumerate() {
-                if let Some(x) = camera.project(&(t_ab.inverse() * p)) {
-                    counts[k][1] += 1;
-                    counts[k][0] += ((x - xb).norm() <= 5.0) as usize;
-                }
-            }
+        let matches = matched_pixels(&fa, &fb);
+        // A's camera as the world: B's pose is the relative pose.
+        for (score, t_ab) in scores.iter_mut().zip([gt, refined.unwrap_or(gt)]) {
+            score.push(matching_accuracy(
+                &matches,
+                depth_a,
+                &camera,
+                &Pose::identity(),
+                &t_ab,
+                CORRECT_MATCH_PX,
+            )?);
         }
     }
-    let share = |k: usize| 100.0 * counts[k][0] as f64 / counts[k][1].max(1) as f64;
+    let [gt, refined] = scores.map(|s| MatchingAccuracy::pool(&s));
     println!(
-        "{} frames {first}..{last}, pairs {gap} apart: {pairs}, refined {refined_pairs}; ORB + BF matches within 5 px: ground truth {:.1} % of {}, refined by depth {:.1} % of {}",
+        "{} frames {first}..{last}, pairs {gap} apart: {pairs}, refined {refined_pairs}; ORB + BF matches within {CORRECT_MATCH_PX} px: ground truth {:.1} % of {}, refined by depth {:.1} % of {}",
         args[0],
-        share(0),
-        counts[0][1],
-        share(1),
-        counts[1][1]
+        100.0 * gt.accuracy,
+        gt.matches,
+        100.0 * refined.accuracy,
+        refined.matches
     );
     Ok(())
 }

@@ -12,9 +12,10 @@
 
 use super::config::SlamConfig;
 use super::depth_alignment::{DepthModel, align};
-use super::map::{ConstraintKind, Map};
+use super::map::{ConstraintKind, KeyFrame, Map};
 use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
+use crate::dataset::DepthImage;
 use crate::geometry::Pose;
 use crate::raster::GrayF32;
 use rayon::prelude::*;
@@ -88,6 +89,12 @@ fn pairs(map: &Map, cfg: &SlamConfig) -> BTreeMap<usize, Vec<Pair>> {
 
 /// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
 /// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
+/// The depth a keyframe is aligned with: the sensor's when the view keeps it
+/// (`dense.edges_on_filtered_depth` off), else the view's, after the map's depth-edge filter.
+fn aligned_depth(k: &KeyFrame) -> &DepthImage {
+    k.view.unfiltered_depth.as_ref().unwrap_or(&k.view.depth)
+}
+
 pub fn keyframe_edges(
     map: &Map,
     camera: &Camera,
@@ -124,7 +131,7 @@ pub fn keyframe_edges(
         .map(|(i, list)| {
             let a = &map.keyframes[*i];
             let Some(mut model) =
-                DepthModel::new(&a.view.depth, camera, rays.clone(), d.model_step, range)
+                DepthModel::new(aligned_depth(a), camera, rays.clone(), d.model_step, range)
             else {
                 return Vec::new();
             };
@@ -134,7 +141,7 @@ pub fn keyframe_edges(
             list.iter()
                 .filter_map(|p| {
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
-                    let depth = &map.keyframes[j].view.depth;
+                    let depth = aligned_depth(&map.keyframes[j]);
                     let found = align(&model, depth, intensities.get(j), &initial, range, d)?;
                     let moved = (initial.inverse() * found.pose).translation.vector.norm();
                     found.passes_edge_gates(&initial, d).then(|| {
@@ -164,7 +171,7 @@ pub fn keyframe_edges(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{DepthImage, LabelImage};
+    use crate::dataset::LabelImage;
     use crate::geometry::Pose;
     use crate::slam::depth_alignment::tests::render;
     use crate::slam::map::{KeyFrame, KeyframeFeatures, KeyframeView};
@@ -259,6 +266,26 @@ mod tests {
         assert!(summary.median_correction > 0.005, "{summary:?}");
         let sigma = config(2).dense.sigma_translation;
         assert!((e.information[0] - 1.0 / (sigma * sigma)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_sensors_depth_is_read_when_the_view_keeps_it() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (mut map, _) = scene(&camera);
+        // Views whose filtered depth holds nothing: no edges, unless the sensor's depth is
+        // kept beside it (`dense.edges_on_filtered_depth` off).
+        for k in &mut map.keyframes {
+            let sensor = k.view.depth.clone();
+            k.view.depth.data.fill(0.0);
+            k.view.unfiltered_depth = Some(sensor);
+        }
+        let (_, with) = keyframe_edges(&map, &camera, &config(2));
+        assert_eq!(with.edges, 3, "{with:?}");
+        for k in &mut map.keyframes {
+            k.view.unfiltered_depth = None;
+        }
+        let (_, without) = keyframe_edges(&map, &camera, &config(2));
+        assert_eq!(without.edges, 0, "{without:?}");
     }
 
     #[test]

@@ -117,6 +117,8 @@ impl LocalMapper {
             input.depth
         };
         let mut depth = depth.unwrap_or_else(|| DepthImage::new(w, h));
+        let unfiltered = (!self.monocular && !self.cfg.dense.edges_on_filtered_depth)
+            .then(|| depth.subsample(self.cfg.map.pixel_stride));
         let track = if self.monocular {
             // The keypoints' 3D points come from the predicted depth.
             Arc::new(KeyframeFeatures::new(
@@ -134,6 +136,7 @@ impl LocalMapper {
             self.cfg.map.depth_edge_ratio,
         );
         let mut view = KeyframeView::new(self.cfg.map.pixel_stride, &input.rgb, &depth, &labels);
+        view.unfiltered_depth = unfiltered;
         let mut gray = None;
         if self.monocular && self.cfg.multiview.references > 0 {
             let t = Instant::now();

@@ -149,6 +149,10 @@ pub struct KeyframeView {
     pub rgb: RgbImage,
     pub depth: DepthImage,
     pub labels: LabelImage,
+    /// The depth as the sensor gave it, sampled as `depth`, before the map's depth-edge
+    /// filter: what the keyframe alignments read when `dense.edges_on_filtered_depth` is
+    /// off (`None` otherwise).
+    pub unfiltered_depth: Option<DepthImage>,
 }
 
 impl KeyframeView {
@@ -176,6 +180,7 @@ impl KeyframeView {
             rgb: small_rgb,
             depth: small_depth,
             labels: small_labels,
+            unfiltered_depth: None,
         }
     }
 }

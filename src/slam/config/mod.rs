@@ -337,6 +337,9 @@ pub struct DenseConfig {
     /// deviation: one sigma of intensity weighs as one sigma of the sensor's depth noise at
     /// 1 m ([`crate::slam::depth_alignment`]); 0: depth alone.
     pub photometric_sigma: f64,
+    /// Keyframe alignments read each keyframe's depth after the map's depth-edge filter
+    /// (`map.depth_edge_*`); off: as the sensor gave it.
+    pub edges_on_filtered_depth: bool,
     /// Refine each frame against the surface fused from every frame tracked before it (a
     /// truncated signed distance volume, [`crate::slam::tsdf`], seen from the frame's pose
     /// from the keypoints), as KinectFusion tracks, instead of its reference keyframe's depth;
@@ -390,6 +393,7 @@ impl Default for DenseConfig {
             prior_sigma_translation: 0.0005,
             prior_sigma_rotation_deg: 0.1,
             photometric_sigma: 0.0,
+            edges_on_filtered_depth: true,
             fused_model: false,
             fused_voxel: 0.01,
             fused_truncation: 0.04,

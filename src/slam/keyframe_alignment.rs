@@ -87,14 +87,14 @@ fn pairs(map: &Map, cfg: &SlamConfig) -> BTreeMap<usize, Vec<Pair>> {
     by_model
 }
 
-/// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
-/// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
 /// The depth a keyframe is aligned with: the sensor's when the view keeps it
 /// (`dense.edges_on_filtered_depth` off), else the view's, after the map's depth-edge filter.
 fn aligned_depth(k: &KeyFrame) -> &DepthImage {
     k.view.unfiltered_depth.as_ref().unwrap_or(&k.view.depth)
 }
 
+/// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
+/// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
 pub fn keyframe_edges(
     map: &Map,
     camera: &Camera,

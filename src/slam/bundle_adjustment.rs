@@ -921,7 +921,7 @@ mod tests {
             i: 3,
             j: 4,
             measurement: truth[3].inverse() * truth[4],
-            information: Vector6::repeat(1e4),
+            information: Matrix6::from_diagonal_element(1e4),
             robust: true,
         };
         let (mut poses, mut moved) = perturbed(&truth, &tracks);

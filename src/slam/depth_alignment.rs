@@ -310,6 +310,10 @@ pub struct Alignment {
     pub points: usize,
     /// Root mean square of those pairs' point-to-plane distances, metres.
     pub rms: f64,
+    /// The last Gauss-Newton step's `JᵀWJ` for a left perturbation `δ = (v, ω)` of the pose
+    /// (`T ← exp(δ) T`), weights relative to the sensor's noise at 1 m: the curvature of the
+    /// alignment's cost, the shape of its information.
+    pub hessian: Matrix6<f64>,
 }
 
 impl Alignment {
@@ -409,18 +413,19 @@ pub fn align(
             }
             let delta = h.cholesky()?.solve(&(-g));
             pose = renormalized(&(se3_exp(&delta) * pose));
-            last = Some((inliers, source.len(), sq));
+            last = Some((inliers, source.len(), sq, h));
             if delta.norm() < 1e-5 {
                 break;
             }
         }
     }
-    let (inliers, points, sq) = last?;
+    let (inliers, points, sq, hessian) = last?;
     Some(Alignment {
         pose,
         inliers,
         points,
         rms: (sq / inliers.max(1) as f64).sqrt(),
+        hessian,
     })
 }
 
@@ -1177,6 +1182,7 @@ pub(crate) mod tests {
             inliers,
             points: 1000,
             rms: 0.01,
+            hessian: Matrix6::identity(),
         };
         assert!(found(0.09, 5.0, 500).passes_edge_gates(&initial, &cfg));
         assert!(!found(0.09, 5.0, 499).passes_edge_gates(&initial, &cfg));

@@ -10,14 +10,15 @@
 //! The starting poses never change once made (tracking's odometry, the constraints' PnP), so
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
-use super::config::SlamConfig;
-use super::depth_alignment::{DepthModel, align};
+use super::config::{DenseConfig, EdgeInformation, SlamConfig};
+use super::depth_alignment::{Alignment, DepthModel, align};
 use super::map::{ConstraintKind, KeyFrame, Map};
-use super::pose_graph::{Edge, information};
+use super::pose_graph::{Edge, adjoint, information};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::Pose;
 use crate::raster::GrayF32;
+use nalgebra::{Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -93,6 +94,40 @@ fn aligned_depth(k: &KeyFrame) -> &DepthImage {
     k.view.unfiltered_depth.as_ref().unwrap_or(&k.view.depth)
 }
 
+/// An edge's information from its alignment (`dense.edge_information`): the fixed
+/// standard deviations, or the ICP's curvature moved to the edge error's coordinates
+/// (`δ = Ad(Z) e` for `exp(δ) Z = Z exp(e)`, so `Ω = Ad(Z)ᵀ H Ad(Z)`) with its translation
+/// and rotation rows and columns scaled so each diagonal block's determinant is that of the
+/// fixed information's. The curvature's own level (thousands of pairs whose errors are not
+/// independent) would trust an edge far too much; the scaling keeps the level the fixed
+/// sigmas were chosen at, and the curvature's anisotropy and couplings. A block whose
+/// determinant is not positive keeps the fixed information.
+fn edge_information(found: &Alignment, d: &DenseConfig) -> Matrix6<f64> {
+    let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
+    if d.edge_information == EdgeInformation::Fixed {
+        return fixed;
+    }
+    let ad = adjoint(&found.pose);
+    let omega = ad.transpose() * found.hessian * ad;
+    // Each block's geometric mean information: the cube root of its determinant.
+    let level = |k: usize| omega.fixed_view::<3, 3>(k, k).determinant().cbrt();
+    let (t, r) = (level(0), level(3));
+    if !(t > 0.0 && r > 0.0 && t.is_finite() && r.is_finite()) {
+        return fixed;
+    }
+    let scale = Vector6::from_fn(|k, _| {
+        let (target, current) = if k < 3 {
+            (fixed[(0, 0)], t)
+        } else {
+            (fixed[(3, 3)], r)
+        };
+        (target / current).sqrt()
+    });
+    let s = Matrix6::from_diagonal(&scale);
+    let scaled = s * omega * s;
+    (scaled + scaled.transpose()) * 0.5
+}
+
 /// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
 /// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
 pub fn keyframe_edges(
@@ -111,7 +146,6 @@ pub fn keyframe_edges(
     }
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
     let rays = Arc::new(RayTable::new(camera, first.view.stride));
-    let information = information(d.sigma_translation, d.sigma_rotation_deg);
     let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
     summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
     // With the photometric term, each keyframe's intensity once (a keyframe takes part in
@@ -149,7 +183,7 @@ pub fn keyframe_edges(
                             i: *i,
                             j,
                             measurement: found.pose,
-                            information,
+                            information: edge_information(&found, d),
                             robust: d.robust_edges,
                         };
                         (edge, moved, is_loop)
@@ -265,7 +299,7 @@ mod tests {
         // About the 1 cm tracking was off by.
         assert!(summary.median_correction > 0.005, "{summary:?}");
         let sigma = config(2).dense.sigma_translation;
-        assert!((e.information[0] - 1.0 / (sigma * sigma)).abs() < 1e-6);
+        assert!((e.information[(0, 0)] - 1.0 / (sigma * sigma)).abs() < 1e-6);
     }
 
     #[test]
@@ -366,5 +400,49 @@ mod tests {
         let (map, _) = scene(&camera);
         let (_, summary) = keyframe_edges(&map, &camera, &config(1));
         assert_eq!(summary.pairs, 2);
+    }
+
+    /// The curvature is moved into the edge error's coordinates and scaled blockwise: a
+    /// Hessian made from a chosen information `D` through the adjoint comes back as `D`
+    /// when `D`'s blocks already have the fixed information's determinants, and its
+    /// anisotropy survives any rescaling; `fixed` ignores the curvature.
+    #[test]
+    fn hessian_information_is_the_curvature_in_the_edges_coordinates() {
+        let mut d = DenseConfig::default();
+        let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
+        let (t, r) = (fixed[(0, 0)], fixed[(3, 3)]);
+        let z = Pose::from_parts(
+            Translation3::new(0.05, -0.02, 0.08),
+            UnitQuaternion::from_euler_angles(0.1, -0.05, 0.2),
+        );
+        let target = Matrix6::from_diagonal(&Vector6::new(
+            0.5 * t,
+            1.0 * t,
+            2.0 * t,
+            0.25 * r,
+            1.0 * r,
+            4.0 * r,
+        ));
+        let ad_inv = adjoint(&z.inverse());
+        let found = |scale: f64| Alignment {
+            pose: z,
+            inliers: 1000,
+            points: 1000,
+            rms: 0.001,
+            hessian: ad_inv.transpose() * target * ad_inv * scale,
+        };
+        assert_eq!(edge_information(&found(1.0), &d), fixed);
+        d.edge_information = EdgeInformation::Hessian;
+        for scale in [1.0, 1e-3, 250.0] {
+            let omega = edge_information(&found(scale), &d);
+            let rel = (omega - target).norm() / target.norm();
+            assert!(rel < 1e-9, "scale {scale}: {omega} against {target}");
+        }
+        // No curvature to shape it: the fixed information.
+        let flat = Alignment {
+            hessian: Matrix6::zeros(),
+            ..found(1.0)
+        };
+        assert_eq!(edge_information(&flat, &d), fixed);
     }
 }

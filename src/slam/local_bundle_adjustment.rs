@@ -224,7 +224,7 @@ mod tests {
     use crate::slam::keypoints::KeyFeatures;
     use crate::slam::map::{Constraint, ConstraintKind, KeyFrame, KeyframeFeatures, KeyframeView};
     use crate::slam::pose_graph::{se3_exp, se3_log};
-    use nalgebra::{Point2, Point3, Translation3, UnitQuaternion, Vector6};
+    use nalgebra::{Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector6};
     use std::sync::Arc;
 
     /// Nine keyframes along a sideways arc looking at 200 points 2-4 m away; keypoint `i` of
@@ -372,7 +372,7 @@ mod tests {
                 Translation3::new(i as f64, j as f64, 0.5),
                 UnitQuaternion::identity(),
             ),
-            information: Vector6::repeat((i + j) as f64),
+            information: Matrix6::from_diagonal_element((i + j) as f64),
             robust: i == 3,
         };
         let ids = [3, 4, 5, 6, 7];

@@ -57,7 +57,7 @@ pub fn se3_log(t: &Pose) -> Vector6<f64> {
 }
 
 /// Adjoint of a pose for `(ρ, φ)` twists.
-fn adjoint(t: &Pose) -> Matrix6<f64> {
+pub(super) fn adjoint(t: &Pose) -> Matrix6<f64> {
     let r = t.rotation.to_rotation_matrix().into_inner();
     let mut a = Matrix6::zeros();
     a.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
@@ -78,14 +78,14 @@ fn jr_inv(e: &Vector6<f64>) -> Matrix6<f64> {
     Matrix6::identity() + 0.5 * ad
 }
 
-/// An edge: measured `Z = T_i⁻¹ T_j` with a diagonal information.
+/// An edge: measured `Z = T_i⁻¹ T_j` with its information matrix.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Edge {
     pub i: usize,
     pub j: usize,
     pub measurement: Pose,
-    /// Information (inverse variances) of `(ρ, φ)`.
-    pub information: Vector6<f64>,
+    /// Information (inverse covariance, symmetric) of the error `(ρ, φ)`.
+    pub information: Matrix6<f64>,
     /// Whether the solver's robust kernel applies (keypoint constraints, which may be
     /// wrong); `false` for edges already gated where they were made (depth alignments).
     pub robust: bool,
@@ -93,8 +93,8 @@ pub struct Edge {
 
 /// An edge's information from the standard deviations of its translation (metres) and
 /// rotation (degrees).
-pub fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
-    sqrt_information(sigma_translation, sigma_rotation_deg).map(|w| w * w)
+pub fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Matrix6<f64> {
+    Matrix6::from_diagonal(&sqrt_information(sigma_translation, sigma_rotation_deg).map(|w| w * w))
 }
 
 /// The square root of [`information`]: one over the standard deviations.
@@ -162,8 +162,8 @@ fn edge_error(poses: &[Pose], e: &Edge) -> Vector6<f64> {
     se3_log(&(e.measurement.inverse() * poses[e.i].inverse() * poses[e.j]))
 }
 
-fn whitened2(err: &Vector6<f64>, info: &Vector6<f64>) -> f64 {
-    err.component_mul(err).dot(info)
+fn whitened2(err: &Vector6<f64>, info: &Matrix6<f64>) -> f64 {
+    err.dot(&(info * err))
 }
 
 /// An edge linearised at the current poses.
@@ -185,7 +185,7 @@ pub(super) fn edge_terms(poses: &[Pose], e: &Edge, kernel: RobustKernel, delta: 
     let jr = jr_inv(&err);
     EdgeTerms {
         cost,
-        omega: Matrix6::from_diagonal(&(e.information * w)),
+        omega: e.information * w,
         err,
         ji: -jr * adjoint(&(poses[e.j].inverse() * poses[e.i])),
         jj: jr,
@@ -424,7 +424,7 @@ mod tests {
             i: 0,
             j: 1,
             measurement: z,
-            information: Vector6::repeat(1.0),
+            information: Matrix6::identity(),
             robust: true,
         };
         let err = edge_error(&poses, &edge);
@@ -459,7 +459,7 @@ mod tests {
             })
             .collect();
         let drift = se3_exp(&Vector6::new(0.01, -0.005, 0.004, 0.002, -0.003, 0.006));
-        let info = Vector6::new(1e4, 1e4, 1e4, 1e4, 1e4, 1e4);
+        let info = Matrix6::from_diagonal_element(1e4);
         let mut edges = Vec::new();
         let mut drifted = vec![truth[0]];
         for k in 1..n {
@@ -531,7 +531,7 @@ mod tests {
         let truth: Vec<Pose> = (0..n)
             .map(|k| Pose::translation(0.1 * k as f64, 0.0, 0.0))
             .collect();
-        let info = Vector6::repeat(1e4);
+        let info = Matrix6::from_diagonal_element(1e4);
         let mut edges: Vec<Edge> = (1..n)
             .map(|k| Edge {
                 i: k - 1,

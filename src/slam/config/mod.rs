@@ -329,6 +329,13 @@ pub struct DenseConfig {
     /// degrees.
     pub sigma_translation: f64,
     pub sigma_rotation_deg: f64,
+    /// How a keyframe edge's information is shaped: `fixed`, those standard deviations in
+    /// every direction; `hessian`, the ICP's own curvature (its Gauss-Newton `JᵀWJ`), its
+    /// translation and rotation parts each scaled so the geometric mean of their variances
+    /// (the cube root of the block's determinant) is those standard deviations' square:
+    /// directions the surfaces pin weigh more, directions they leave loose (sliding along a
+    /// wall) less.
+    pub edge_information: EdgeInformation,
     /// Standard deviations of the prior that keeps a refined frame's dense pose when the
     /// frame is refined again against the adjusted points after bundle adjustment.
     pub prior_sigma_translation: f64,
@@ -390,6 +397,7 @@ impl Default for DenseConfig {
             robust_edges: false,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,
+            edge_information: EdgeInformation::Fixed,
             prior_sigma_translation: 0.0005,
             prior_sigma_rotation_deg: 0.1,
             photometric_sigma: 0.0,
@@ -558,6 +566,14 @@ impl Default for LabelVoteConfig {
             void_votes: false,
         }
     }
+}
+
+/// How a keyframe edge's information is shaped ([`DenseConfig::edge_information`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EdgeInformation {
+    Fixed,
+    Hessian,
 }
 
 /// Robust kernel of the pose graph.

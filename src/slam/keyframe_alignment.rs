@@ -94,22 +94,32 @@ fn aligned_depth(k: &KeyFrame) -> &DepthImage {
     k.view.unfiltered_depth.as_ref().unwrap_or(&k.view.depth)
 }
 
+/// An alignment's curvature `H` (left perturbation of `Z = T_i⁻¹ T_j`) in the pose graph's
+/// edge-error coordinates: `δ = Ad(Z) e` for `exp(δ) Z = Z exp(e)`, so `Ω = Ad(Z)ᵀ H Ad(Z)`.
+fn curvature_in_edge_coordinates(hessian: &Matrix6<f64>, z: &Pose) -> Matrix6<f64> {
+    let ad = adjoint(z);
+    ad.transpose() * hessian * ad
+}
+
 /// An edge's information from its alignment (`dense.edge_information`): the fixed
-/// standard deviations, or the ICP's curvature moved to the edge error's coordinates
-/// (`δ = Ad(Z) e` for `exp(δ) Z = Z exp(e)`, so `Ω = Ad(Z)ᵀ H Ad(Z)`) with its translation
-/// and rotation rows and columns scaled so each diagonal block's determinant is that of the
-/// fixed information's. The curvature's own level (thousands of pairs whose errors are not
-/// independent) would trust an edge far too much; the scaling keeps the level the fixed
-/// sigmas were chosen at, and the curvature's anisotropy and couplings. A block whose
-/// determinant is not positive keeps the fixed information.
+/// standard deviations, or the ICP's curvature in the edge error's coordinates
+/// ([`curvature_in_edge_coordinates`]) with its translation and rotation rows and columns
+/// scaled so each diagonal block's determinant is that of the fixed information's. The
+/// curvature's own level (thousands of pairs whose errors are not independent) would trust
+/// an edge far too much; the scaling keeps the level the fixed sigmas were chosen at, and the
+/// curvature's anisotropy and couplings. The diagonal blocks are conditional information
+/// (each part with the other held), so where translation and rotation are coupled the
+/// marginal uncertainty is larger than the fixed sigmas'. The anisotropy is bounded only by
+/// the alignment's own degeneracy check (eigenvalues within 1e6 of each other). A block
+/// whose determinant is not positive keeps the fixed information.
 fn edge_information(found: &Alignment, d: &DenseConfig) -> Matrix6<f64> {
     let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
     if d.edge_information == EdgeInformation::Fixed {
         return fixed;
     }
-    let ad = adjoint(&found.pose);
-    let omega = ad.transpose() * found.hessian * ad;
-    // Each block's geometric mean information: the cube root of its determinant.
+    let omega = curvature_in_edge_coordinates(&found.hessian, &found.pose);
+    // Each block's geometric mean information (the inverse of the geometric mean of its
+    // conditional variances): the cube root of its determinant.
     let level = |k: usize| omega.fixed_view::<3, 3>(k, k).determinant().cbrt();
     let (t, r) = (level(0), level(3));
     if !(t > 0.0 && r > 0.0 && t.is_finite() && r.is_finite()) {
@@ -402,41 +412,81 @@ mod tests {
         assert_eq!(summary.pairs, 2);
     }
 
-    /// The curvature is moved into the edge error's coordinates and scaled blockwise: a
-    /// Hessian made from a chosen information `D` through the adjoint comes back as `D`
-    /// when `D`'s blocks already have the fixed information's determinants, and its
-    /// anisotropy survives any rescaling; `fixed` ignores the curvature.
+    /// The change of coordinates, checked by its meaning rather than its formula: for a
+    /// small edge error `e`, the same relative pose as a left perturbation `δ` of `Z`
+    /// (`exp(δ) = Z exp(e) Z⁻¹`) has `δᵀ H δ = eᵀ Ω e`.
     #[test]
-    fn hessian_information_is_the_curvature_in_the_edges_coordinates() {
+    fn the_curvature_moves_into_the_edge_errors_coordinates() {
+        use crate::slam::pose_graph::{se3_exp, se3_log};
+        let z = Pose::from_parts(
+            Translation3::new(0.3, -0.2, 0.5),
+            UnitQuaternion::from_euler_angles(0.4, -0.3, 0.8),
+        );
+        let l = Matrix6::from_fn(|r, c| {
+            if r >= c {
+                1.0 + (r * 7 + c * 3) as f64 % 5.0
+            } else {
+                0.0
+            }
+        });
+        let h = l * l.transpose();
+        let omega = curvature_in_edge_coordinates(&h, &z);
+        for k in 0..6 {
+            let e = Vector6::from_fn(|r, _| {
+                1e-4 * (1.0 + ((r + k) % 6) as f64) * if r % 2 == 0 { 1.0 } else { -1.0 }
+            });
+            let delta = se3_log(&(z * se3_exp(&e) * z.inverse()));
+            let (lhs, rhs) = (delta.dot(&(h * delta)), e.dot(&(omega * e)));
+            assert!((lhs - rhs).abs() < 1e-6 * lhs.abs(), "{lhs} against {rhs}");
+        }
+    }
+
+    /// Scaled blockwise: each diagonal block ends with the fixed information's determinant
+    /// whatever the curvature's level, and every correlation, translation-rotation couplings
+    /// included, is the curvature's; `fixed` ignores the curvature.
+    #[test]
+    fn hessian_information_keeps_the_curvatures_shape_at_the_fixed_level() {
         let mut d = DenseConfig::default();
         let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
-        let (t, r) = (fixed[(0, 0)], fixed[(3, 3)]);
         let z = Pose::from_parts(
             Translation3::new(0.05, -0.02, 0.08),
             UnitQuaternion::from_euler_angles(0.1, -0.05, 0.2),
         );
-        let target = Matrix6::from_diagonal(&Vector6::new(
-            0.5 * t,
-            1.0 * t,
-            2.0 * t,
-            0.25 * r,
-            1.0 * r,
-            4.0 * r,
-        ));
-        let ad_inv = adjoint(&z.inverse());
+        let l = Matrix6::from_fn(|r, c| {
+            if r >= c {
+                1.0 + (r * 5 + c * 2) as f64 % 3.0
+            } else {
+                0.0
+            }
+        });
         let found = |scale: f64| Alignment {
             pose: z,
             inliers: 1000,
             points: 1000,
             rms: 0.001,
-            hessian: ad_inv.transpose() * target * ad_inv * scale,
+            hessian: l * l.transpose() * scale,
         };
         assert_eq!(edge_information(&found(1.0), &d), fixed);
         d.edge_information = EdgeInformation::Hessian;
+        let shape = curvature_in_edge_coordinates(&found(1.0).hessian, &z);
+        let correlation =
+            |m: &Matrix6<f64>, r: usize, c: usize| m[(r, c)] / (m[(r, r)] * m[(c, c)]).sqrt();
         for scale in [1.0, 1e-3, 250.0] {
             let omega = edge_information(&found(scale), &d);
-            let rel = (omega - target).norm() / target.norm();
-            assert!(rel < 1e-9, "scale {scale}: {omega} against {target}");
+            for k in [0, 3] {
+                let det = omega.fixed_view::<3, 3>(k, k).determinant();
+                let want = fixed.fixed_view::<3, 3>(k, k).determinant();
+                assert!(
+                    (det / want - 1.0).abs() < 1e-9,
+                    "block {k}: {det} against {want}"
+                );
+            }
+            for r in 0..6 {
+                for c in 0..6 {
+                    let (a, b) = (correlation(&omega, r, c), correlation(&shape, r, c));
+                    assert!((a - b).abs() < 1e-9, "({r}, {c}): {a} against {b}");
+                }
+            }
         }
         // No curvature to shape it: the fixed information.
         let flat = Alignment {

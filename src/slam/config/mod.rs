@@ -331,8 +331,9 @@ pub struct DenseConfig {
     pub sigma_rotation_deg: f64,
     /// How a keyframe edge's information is shaped: `fixed`, those standard deviations in
     /// every direction; `hessian`, the ICP's own curvature (its Gauss-Newton `JᵀWJ`), its
-    /// translation and rotation parts each scaled so the geometric mean of their variances
-    /// (the cube root of the block's determinant) is those standard deviations' square:
+    /// translation and rotation parts each scaled so the cube root of the block's
+    /// determinant (the geometric mean of its information) is one over the standard
+    /// deviation's square:
     /// directions the surfaces pin weigh more, directions they leave loose (sliding along a
     /// wall) less.
     pub edge_information: EdgeInformation,

@@ -112,9 +112,14 @@ fn curvature_in_edge_coordinates(hessian: &Matrix6<f64>, z: &Pose) -> Matrix6<f6
 /// marginal uncertainty is larger than the fixed sigmas'. The anisotropy is bounded only by
 /// the alignment's own degeneracy check (eigenvalues within 1e6 of each other). A block
 /// whose determinant is not positive keeps the fixed information.
-fn edge_information(found: &Alignment, d: &DenseConfig) -> Matrix6<f64> {
+fn edge_information(found: &Alignment, is_loop: bool, d: &DenseConfig) -> Matrix6<f64> {
     let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
-    if d.edge_information == EdgeInformation::Fixed {
+    let shaped = match d.edge_information {
+        EdgeInformation::Fixed => false,
+        EdgeInformation::Hessian => true,
+        EdgeInformation::Loops => is_loop,
+    };
+    if !shaped {
         return fixed;
     }
     let omega = curvature_in_edge_coordinates(&found.hessian, &found.pose);
@@ -193,7 +198,7 @@ pub fn keyframe_edges(
                             i: *i,
                             j,
                             measurement: found.pose,
-                            information: edge_information(&found, d),
+                            information: edge_information(&found, is_loop, d),
                             robust: d.robust_edges,
                         };
                         (edge, moved, is_loop)
@@ -466,13 +471,13 @@ mod tests {
             rms: 0.001,
             hessian: l * l.transpose() * scale,
         };
-        assert_eq!(edge_information(&found(1.0), &d), fixed);
+        assert_eq!(edge_information(&found(1.0), false, &d), fixed);
         d.edge_information = EdgeInformation::Hessian;
         let shape = curvature_in_edge_coordinates(&found(1.0).hessian, &z);
         let correlation =
             |m: &Matrix6<f64>, r: usize, c: usize| m[(r, c)] / (m[(r, r)] * m[(c, c)]).sqrt();
         for scale in [1.0, 1e-3, 250.0] {
-            let omega = edge_information(&found(scale), &d);
+            let omega = edge_information(&found(scale), false, &d);
             for k in [0, 3] {
                 let det = omega.fixed_view::<3, 3>(k, k).determinant();
                 let want = fixed.fixed_view::<3, 3>(k, k).determinant();
@@ -488,11 +493,17 @@ mod tests {
                 }
             }
         }
+        // `loops`: shaped for loop pairs only.
+        let shaped = edge_information(&found(1.0), false, &d);
+        d.edge_information = EdgeInformation::Loops;
+        assert_eq!(edge_information(&found(1.0), true, &d), shaped);
+        assert_eq!(edge_information(&found(1.0), false, &d), fixed);
+        d.edge_information = EdgeInformation::Hessian;
         // No curvature to shape it: the fixed information.
         let flat = Alignment {
             hessian: Matrix6::zeros(),
             ..found(1.0)
         };
-        assert_eq!(edge_information(&flat, &d), fixed);
+        assert_eq!(edge_information(&flat, false, &d), fixed);
     }
 }

@@ -575,6 +575,9 @@ impl Default for LabelVoteConfig {
 pub enum EdgeInformation {
     Fixed,
     Hessian,
+    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: README,
+    /// "Keyframe edges shaped by the alignment's curvature").
+    Loops,
 }
 
 /// Robust kernel of the pose graph.

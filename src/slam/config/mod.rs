@@ -333,9 +333,8 @@ pub struct DenseConfig {
     /// every direction; `hessian`, the ICP's own curvature (its Gauss-Newton `JᵀWJ`), its
     /// translation and rotation parts each scaled so the cube root of the block's
     /// determinant (the geometric mean of its information) is one over the standard
-    /// deviation's square:
-    /// directions the surfaces pin weigh more, directions they leave loose (sliding along a
-    /// wall) less.
+    /// deviation's square: directions the surfaces pin weigh more, directions they leave
+    /// loose (sliding along a wall) less; `loops`, `hessian` for loop pairs only.
     pub edge_information: EdgeInformation,
     /// Standard deviations of the prior that keeps a refined frame's dense pose when the
     /// frame is refined again against the adjusted points after bundle adjustment.

@@ -417,6 +417,19 @@ mod tests {
         assert_eq!(summary.pairs, 2);
     }
 
+    /// A symmetric positive definite curvature with every translation-rotation coupling:
+    /// `L Lᵀ` for the lower triangle `L[r][c] = 1 + (a r + b c) mod m`.
+    fn coupled_curvature(a: usize, b: usize, m: f64) -> Matrix6<f64> {
+        let l = Matrix6::from_fn(|r, c| {
+            if r >= c {
+                1.0 + (r * a + c * b) as f64 % m
+            } else {
+                0.0
+            }
+        });
+        l * l.transpose()
+    }
+
     /// The change of coordinates, checked by its meaning rather than its formula: for a
     /// small edge error `e`, the same relative pose as a left perturbation `δ` of `Z`
     /// (`exp(δ) = Z exp(e) Z⁻¹`) has `δᵀ H δ = eᵀ Ω e`.
@@ -427,14 +440,7 @@ mod tests {
             Translation3::new(0.3, -0.2, 0.5),
             UnitQuaternion::from_euler_angles(0.4, -0.3, 0.8),
         );
-        let l = Matrix6::from_fn(|r, c| {
-            if r >= c {
-                1.0 + (r * 7 + c * 3) as f64 % 5.0
-            } else {
-                0.0
-            }
-        });
-        let h = l * l.transpose();
+        let h = coupled_curvature(7, 3, 5.0);
         let omega = curvature_in_edge_coordinates(&h, &z);
         for k in 0..6 {
             let e = Vector6::from_fn(|r, _| {
@@ -457,19 +463,12 @@ mod tests {
             Translation3::new(0.05, -0.02, 0.08),
             UnitQuaternion::from_euler_angles(0.1, -0.05, 0.2),
         );
-        let l = Matrix6::from_fn(|r, c| {
-            if r >= c {
-                1.0 + (r * 5 + c * 2) as f64 % 3.0
-            } else {
-                0.0
-            }
-        });
         let found = |scale: f64| Alignment {
             pose: z,
             inliers: 1000,
             points: 1000,
             rms: 0.001,
-            hessian: l * l.transpose() * scale,
+            hessian: coupled_curvature(5, 2, 3.0) * scale,
         };
         assert_eq!(edge_information(&found(1.0), false, &d), fixed);
         d.edge_information = EdgeInformation::Hessian;

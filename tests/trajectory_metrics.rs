@@ -148,3 +148,35 @@ fn umeyama_recovers_a_similarity() {
     let line: Vec<_> = (0..5).map(|i| Point3::new(i as f64, 0.0, 0.0)).collect();
     assert!(metrics::umeyama(&line, &line, false).is_err());
 }
+
+/// A keyframe-based estimate: every frame follows its keyframe exactly, and each new
+/// keyframe (every 10th frame) is 1 cm off along x from where the ground truth puts it, so
+/// the error lands in the one step into each keyframe. Split at the keyframes' stamps, the
+/// pairs across a switch carry all of it and the pairs within a span none.
+#[test]
+fn rpe_at_keyframes_puts_the_jumps_at_the_switches() {
+    let gt = wavy();
+    let poses = gt
+        .poses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let slip = Translation3::new(0.01 * (i / 10) as f64, 0.0, 0.0);
+            Isometry3::from_parts(slip, UnitQuaternion::identity()) * p
+        })
+        .collect();
+    let est = Trajectory::from_parts(gt.stamps.clone(), poses).unwrap();
+    let r = metrics::rpe(&gt, &est, Alignment::None, 0.01, 1.0, DeltaUnit::Frames).unwrap();
+    let keyframes: Vec<f64> = gt.stamps.iter().step_by(10).copied().collect();
+    let split = r.at_keyframes(&keyframes);
+    let (within, across) = (split.within.unwrap(), split.across.unwrap());
+    assert_eq!(within.trans.pairs + across.trans.pairs, 99);
+    // Frames 10, 20, ..., 90 begin a keyframe: nine pairs across a switch.
+    assert_eq!(across.trans.pairs, 9);
+    assert!(within.trans.max < 1e-9, "{}", within.trans.max);
+    assert!((across.trans.min - 0.01).abs() < 1e-6 && (across.trans.max - 0.01).abs() < 1e-6);
+    // Without keyframes every pair is within one span.
+    let none = r.at_keyframes(&[]);
+    assert!(none.across.is_none());
+    assert_eq!(none.within.unwrap().trans.pairs, 99);
+}

@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! eval ate GT EST [--align se3|sim3|scale|none] [--t-max-diff S] [--json FILE] [--plot FILE.png]
-//! eval rpe GT EST [--delta N --delta-unit frames|metres] [same options]
+//! eval rpe GT EST [--delta N --delta-unit frames|metres] [--keyframes KF] [same options]
 //! eval matching --sequence DIR [--gap 5] [--pairs 100] [--blur motion:9] [--fpfdcnn CKPT | --orb-only]
 //!          [--window-at-keypoint] [--no-mutual] [--ratio R] [--ratio-exclusion PX] [--roll DEG]
 //!          [--derotate DEG] [--json FILE]
@@ -49,6 +49,10 @@ enum Command {
         /// Unit of --delta.
         #[arg(long, default_value = "frames")]
         delta_unit: DeltaUnit,
+        /// The run's keyframes (`slam`'s keyframes.txt): also report the pairs within one
+        /// keyframe's span and those across a keyframe switch apart.
+        #[arg(long)]
+        keyframes: Option<PathBuf>,
     },
     /// The paper's Tables 6 and 7: matching accuracy and relative-pose error of
     /// ORB + BF and FPFDCNN + range matcher on clear and blurred frame pairs.
@@ -469,6 +473,7 @@ fn main() -> Result<()> {
             traj: a,
             delta,
             delta_unit,
+            keyframes,
         } => {
             let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
             let r = metrics::rpe(&gt, &est, a.align, a.t_max_diff, delta, delta_unit)
@@ -484,6 +489,24 @@ fn main() -> Result<()> {
             );
             print_stats("translation part (m)", "m", &r.trans);
             print_stats("rotation angle (deg)", "deg", &r.rot_deg);
+            let split = match &keyframes {
+                Some(p) => Some(r.at_keyframes(&read(p)?.stamps)),
+                None => None,
+            };
+            if let Some(split) = &split {
+                for (name, part) in [
+                    ("within one keyframe's span", &split.within),
+                    ("across a keyframe switch", &split.across),
+                ] {
+                    match part {
+                        Some(x) => println!(
+                            "pairs {name}: {} pairs, translation rmse {:.6} m, rotation rmse {:.4} deg",
+                            x.trans.pairs, x.trans.rmse, x.rot_deg.rmse
+                        ),
+                        None => println!("pairs {name}: none"),
+                    }
+                }
+            }
             let paper = match delta_unit {
                 DeltaUnit::Frames => {
                     PoseError::over_frames(&r.reference, &r.estimate, delta as usize).ok()
@@ -502,6 +525,9 @@ fn main() -> Result<()> {
                 v["alignment"] = json!({"method": a.align, "scale": r.alignment.scale});
                 if let Some(e) = &paper {
                     v["paper"] = serde_json::to_value(e)?;
+                }
+                if let Some(split) = &split {
+                    v["keyframes"] = json!({"within": split.within, "across": split.across});
                 }
                 write_json(p, &v)?;
             }

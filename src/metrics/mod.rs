@@ -15,4 +15,6 @@ pub use matching::{MatchingAccuracy, frame_pair_accuracy, matching_accuracy};
 pub use pose_error::{PoseError, PoseErrorSegment};
 pub use segmentation::{ClassScore, ConfusionMatrix};
 pub use stats::Stats;
-pub use trajectory::{Alignment, Ape, DeltaUnit, Rpe, ape, associate, rpe, umeyama};
+pub use trajectory::{
+    Alignment, Ape, DeltaUnit, Rpe, RpeAtKeyframes, RpeSplit, ape, associate, rpe, umeyama,
+};

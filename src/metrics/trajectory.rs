@@ -259,6 +259,62 @@ pub struct Rpe {
     pub estimate: Trajectory,
 }
 
+/// An [`Rpe`]'s pairs split by whether a keyframe begins between the two poses: a
+/// keyframe-based tracker expresses the frames of one keyframe's span against that keyframe,
+/// so the pairs across a switch show the jumps where the reference changes (issue 18's
+/// "fewer jumps at keyframe switches").
+#[derive(Debug, Clone)]
+pub struct RpeAtKeyframes {
+    /// Pairs within one keyframe's span (no keyframe stamp in `(t_i, t_j]`).
+    pub within: Option<RpeSplit>,
+    /// Pairs across a switch (a keyframe stamp in `(t_i, t_j]`).
+    pub across: Option<RpeSplit>,
+}
+
+/// Translation (m) and rotation (deg) statistics of a subset of an [`Rpe`]'s pairs.
+#[derive(Debug, Clone, Serialize)]
+pub struct RpeSplit {
+    pub trans: Stats,
+    pub rot_deg: Stats,
+}
+
+impl Rpe {
+    /// Splits the pairs at the keyframes' stamps (the estimate's clock; a stamp within 1 µs
+    /// of a pose's counts as that pose's).
+    pub fn at_keyframes(&self, keyframe_stamps: &[f64]) -> RpeAtKeyframes {
+        let mut stamps: Vec<f64> = keyframe_stamps
+            .iter()
+            .copied()
+            .filter(|t| t.is_finite())
+            .collect();
+        stamps.sort_by(f64::total_cmp);
+        let eps = 1e-6;
+        let (mut within, mut across) = ((Vec::new(), Vec::new()), (Vec::new(), Vec::new()));
+        for (k, &(i, j)) in self.pairs.iter().enumerate() {
+            let (ti, tj) = (self.estimate.stamps[i], self.estimate.stamps[j]);
+            // The first keyframe stamp after t_i; a switch if it is not after t_j.
+            let next = stamps.partition_point(|&s| s <= ti + eps);
+            let side = if stamps.get(next).is_some_and(|&s| s <= tj + eps) {
+                &mut across
+            } else {
+                &mut within
+            };
+            side.0.push(self.trans_errors[k]);
+            side.1.push(self.rot_errors_deg[k]);
+        }
+        let split = |(t, r): (Vec<f64>, Vec<f64>)| {
+            Some(RpeSplit {
+                trans: Stats::of(&t)?,
+                rot_deg: Stats::of(&r)?,
+            })
+        };
+        RpeAtKeyframes {
+            within: split(within),
+            across: split(across),
+        }
+    }
+}
+
 /// Consecutive pairs `delta` frames apart (evo `filter_pairs_by_index`).
 fn pairs_by_index(n: usize, delta: usize) -> Vec<(usize, usize)> {
     let ids: Vec<usize> = (0..n).step_by(delta).collect();

@@ -24,6 +24,7 @@ pub mod depth_alignment;
 pub mod depth_edges;
 pub mod depth_sync;
 pub mod evaluation;
+pub mod frame_blending;
 pub mod keyframe_alignment;
 pub mod keypoints;
 pub mod local_bundle_adjustment;

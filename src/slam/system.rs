@@ -9,6 +9,7 @@
 use super::bundle_adjustment::{BaSummary, refine_frames};
 use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
+use super::frame_blending::blend_frames;
 use super::keyframe_alignment::{KeyframeAlignmentSummary, keyframe_edges};
 use super::keypoints::KeypointSource;
 use super::local_bundle_adjustment::LocalBaStats;
@@ -576,6 +577,9 @@ impl Slam {
                     summary
                 });
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
+        if config.correction.blend_frames {
+            blend_frames(&read(&map), &mut run.frames);
+        }
         mapper.refuse_all();
         timings.finalisation.add(t);
         timings.fusion = mapper.fusion_time;

@@ -641,6 +641,10 @@ pub struct CorrectionConfig {
     pub local_max_scale_change: f64,
     /// Seed of the random pair selection.
     pub seed: u64,
+    /// Frames between two consecutive keyframes take both keyframes' corrections,
+    /// interpolated by time ([`crate::slam::frame_blending`]); false: their reference
+    /// keyframe's alone.
+    pub blend_frames: bool,
 }
 
 impl Default for CorrectionConfig {
@@ -667,6 +671,7 @@ impl Default for CorrectionConfig {
             local_min_observations: 20,
             local_max_scale_change: 0.2,
             seed: 0,
+            blend_frames: false,
         }
     }
 }

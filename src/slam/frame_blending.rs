@@ -20,9 +20,11 @@ use crate::geometry::{interpolate, renormalized};
 
 /// Blends the frames between consecutive keyframes in place; returns how many moved.
 ///
-/// A frame is left as it is when it has no reference, when it was lost, when no keyframe
-/// follows it, or when the keyframe after it is not its reference's successor made from a
-/// tracked frame (a relocalisation or a restart after loss breaks the odometry between them).
+/// A frame is left as it is when no keyframe follows it, or when anything between it and the
+/// next keyframe `B` breaks the odometry from its reference `A` to `B`: `B` is not `A + 1` or
+/// was not made from a tracked frame (a restart after loss), or a frame between was lost,
+/// relocalised or tracked against another keyframe. Frames refined after bundle adjustment
+/// (`bundle_adjustment.refine_frames`) are blended from their refined pose against `A`.
 pub fn blend_frames(map: &Map, frames: &mut [FrameRecord]) -> usize {
     let mut next: Option<usize> = None;
     let mut blended = 0;
@@ -31,13 +33,14 @@ pub fn blend_frames(map: &Map, frames: &mut [FrameRecord]) -> usize {
             next = (f.status == FrameStatus::Tracked).then_some(k);
             continue;
         }
-        if f.status == FrameStatus::Lost {
-            continue;
-        }
+        // Walking back from `B`, every frame down to `A` must be tracked against `A = B - 1`;
+        // a lost or relocalised frame, or one against another keyframe, means `B` was not
+        // made from `A`'s odometry, so no frame before it is blended towards `B`.
         let (Some(a), Some(b)) = (f.reference, next) else {
             continue;
         };
-        if b != a + 1 {
+        if f.status != FrameStatus::Tracked || b != a + 1 {
+            next = None;
             continue;
         }
         let (Some(ka), Some(kb)) = (map.keyframes.get(a), map.keyframes.get(b)) else {
@@ -68,7 +71,7 @@ mod tests {
 
     fn at(x: f64, yaw_deg: f64) -> Pose {
         Pose::from_parts(
-            Translation3::new(x, 0.0, 0.0),
+            Translation3::new(x, 0.01 * x, 0.0),
             UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()),
         )
     }
@@ -113,15 +116,14 @@ mod tests {
         }
     }
 
-    /// Tracking moved 10 cm and turned 4 degrees from keyframe 0 (frame 0) to keyframe 1
-    /// (frame 4); the back end put keyframe 1 2 cm further and 2 degrees more turned. The
-    /// frames between take a growing share of that, keyframes and frames before the first
-    /// keyframe's successor keep theirs.
-    fn run() -> (Map, Vec<FrameRecord>, Vec<FrameRecord>) {
+    /// Keyframe 0 (frame 0) and keyframe 1 (frame 4): tracking moved 10 cm and turned 4
+    /// degrees between them; the back end moved keyframe 0 by 5 cm and 3 degrees and keyframe
+    /// 1 by 7 cm and 5 degrees. Frames 1-3 are tracked against keyframe 0, frame 5 against 1.
+    fn scene() -> (Map, Vec<FrameRecord>) {
         let map = Map {
             keyframes: vec![
-                keyframe(0, 0.0, at(0.0, 0.0), at(0.0, 0.0)),
-                keyframe(1, 4.0, at(0.1, 4.0), at(0.12, 6.0)),
+                keyframe(0, 0.0, at(0.0, 0.0), at(0.05, 3.0)),
+                keyframe(1, 4.0, at(0.1, 4.0), at(0.17, 9.0)),
             ],
             constraints: Vec::new(),
             epoch: 0,
@@ -130,53 +132,60 @@ mod tests {
         frames.extend((1..4).map(|i| record(i, None, 0, at(0.025 * i as f64, i as f64))));
         frames.push(record(4, Some(1), 1, Pose::identity()));
         frames.push(record(5, None, 1, at(0.01, 0.0)));
-        let before = frames.clone();
-        blend_frames(&map, &mut frames);
-        (map, before, frames)
+        (map, frames)
     }
 
     #[test]
     fn frames_between_keyframes_share_both_corrections_by_time() {
-        let (map, before, after) = run();
+        let (map, before) = scene();
+        let mut after = before.clone();
+        assert_eq!(blend_frames(&map, &mut after), 3);
+        let (a, b) = (&map.keyframes[0], &map.keyframes[1]);
+        // Each keyframe's correction, applied to the frame's odometry pose.
+        let correction_a = a.pose * a.odom_pose.inverse();
+        let correction_b = b.pose * b.odom_pose.inverse();
         for i in 1..4 {
             let s = i as f64 / 4.0;
-            let from_a = map.keyframes[0].pose * before[i].relative;
-            let pose = map.keyframes[0].pose * after[i].relative;
-            // Keyframe 1's correction, applied to the frame's odometry pose, in full.
-            let correction = map.keyframes[1].pose * map.keyframes[1].odom_pose.inverse();
-            let from_b = correction * from_a;
-            let expected = interpolate(&from_a, &from_b, s);
-            assert!((pose.translation.vector - expected.translation.vector).norm() < 1e-12);
-            assert!(pose.rotation.angle_to(&expected.rotation) < 1e-12);
-            // Strictly between the two: the jump is spread, not moved.
-            let gap = (from_b.translation.vector - from_a.translation.vector).norm();
-            let moved = (pose.translation.vector - from_a.translation.vector).norm();
-            assert!(
-                (moved - s * gap).abs() < 1e-9,
-                "frame {i}: {moved} vs {}",
-                s * gap
-            );
+            let odometry = a.odom_pose * before[i].relative;
+            let (from_a, from_b) = (correction_a * odometry, correction_b * odometry);
+            let pose = a.pose * after[i].relative;
+            let t = from_a.translation.vector * (1.0 - s) + from_b.translation.vector * s;
+            assert!((pose.translation.vector - t).norm() < 1e-12, "frame {i}");
+            let turn = from_a.rotation.angle_to(&from_b.rotation);
+            assert!((from_a.rotation.angle_to(&pose.rotation) - s * turn).abs() < 1e-9);
+            assert!((pose.rotation.angle_to(&from_b.rotation) - (1.0 - s) * turn).abs() < 1e-9);
         }
         // Keyframes keep their poses; the frame after the last keyframe has no successor.
-        assert_eq!(after[0].relative, before[0].relative);
-        assert_eq!(after[4].relative, before[4].relative);
-        assert_eq!(after[5].relative, before[5].relative);
+        for i in [0, 4, 5] {
+            assert_eq!(after[i].relative, before[i].relative, "frame {i}");
+        }
     }
 
     #[test]
     fn frames_are_left_alone_where_the_odometry_breaks() {
-        let (map, mut frames, _) = run();
-        // The next keyframe was a restart after loss: its odometry does not follow keyframe 0's.
-        frames[4].status = FrameStatus::Initialised;
-        let before = frames.clone();
+        let (map, before) = scene();
+        // Keyframe 1 was a restart after loss (the tracker marks it lost).
+        let mut frames = before.clone();
+        frames[4].status = FrameStatus::Lost;
         assert_eq!(blend_frames(&map, &mut frames), 0);
-        assert_eq!(frames, before);
-        // A frame relocalised against another keyframe than the next one's predecessor.
-        frames[4].status = FrameStatus::Tracked;
-        frames[2].reference = Some(1);
+        let relatives = |f: &[FrameRecord]| f.iter().map(|r| r.relative).collect::<Vec<_>>();
+        assert_eq!(relatives(&frames), relatives(&before));
+        // Frame 2 was lost and frame 3 relocalised against keyframe 0 before keyframe 1 was
+        // made: frames 1-3 keep their poses.
+        let mut frames = before.clone();
+        frames[2].status = FrameStatus::Lost;
+        frames[3].status = FrameStatus::Relocalised;
+        assert_eq!(blend_frames(&map, &mut frames), 0);
+        // Frame 3 was tracked against an older keyframe than frame 4's predecessor: frame 3
+        // and the frames before it keep their poses.
+        let mut frames = before.clone();
+        frames[3].reference = Some(1);
+        assert_eq!(blend_frames(&map, &mut frames), 0);
+        // The same break after frame 2 leaves frame 3 to be blended alone.
+        let mut frames = before.clone();
         frames[2].status = FrameStatus::Relocalised;
-        let moved = blend_frames(&map, &mut frames);
-        assert_eq!(moved, 2);
-        assert_eq!(frames[2].relative, before[2].relative);
+        assert_eq!(blend_frames(&map, &mut frames), 1);
+        assert_ne!(frames[3].relative, before[3].relative);
+        assert_eq!(frames[1].relative, before[1].relative);
     }
 }

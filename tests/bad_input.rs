@@ -354,6 +354,11 @@ fn corpus() -> Vec<Case> {
             .file("gt.txt", "1.0 0 0 0 0 0 0 1\n"),
         case("missing trajectory", "eval", &["ate", "nofile.txt", "est.txt"], &["nofile.txt"])
             .file("est.txt", trajectory),
+        case("missing keyframes", "eval", &["rpe", "est.txt", "est.txt", "--keyframes", "kf.txt"], &["kf.txt"])
+            .file("est.txt", trajectory),
+        case("keyframes line of six fields", "eval", &["rpe", "est.txt", "est.txt", "--keyframes", "kf.txt"], &["kf.txt:2", "expected 8 fields"])
+            .file("est.txt", trajectory)
+            .file("kf.txt", "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 1\n"),
         case("no keypoints", "eval", &["matching", "--sequence", "seq", "--keypoints", "0"], &["--keypoints", "got 0"]),
         case("refinement search 99 px", "eval", &["matching", "--sequence", "seq", "--refine-search", "99"], &["--refine-search", "search_px", "got 99"]),
         case("refinement NCC 3", "eval", &["matching", "--sequence", "seq", "--refine-min-ncc", "3"], &["--refine-min-ncc", "got 3"]),

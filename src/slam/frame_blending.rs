@@ -52,7 +52,7 @@ pub fn blend_frames(map: &Map, frames: &mut [FrameRecord]) -> usize {
         }
         let s = ((f.stamp - ka.stamp) / span).clamp(0.0, 1.0);
         let from_a = ka.pose * f.relative;
-        let from_b = kb.pose * kb.odom_pose.inverse() * ka.odom_pose * f.relative;
+        let from_b = kb.carry(&(ka.odom_pose * f.relative));
         let pose = interpolate(&from_a, &from_b, s);
         f.relative = renormalized(&(ka.pose.inverse() * pose));
         blended += 1;
@@ -63,11 +63,10 @@ pub fn blend_frames(map: &Map, frames: &mut [FrameRecord]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{DepthImage, LabelImage};
+    use crate::dataset::DepthImage;
     use crate::geometry::Pose;
-    use crate::slam::map::{KeyFrame, KeyframeFeatures, KeyframeView};
+    use crate::slam::map::KeyFrame;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
-    use std::sync::Arc;
 
     fn at(x: f64, yaw_deg: f64) -> Pose {
         Pose::from_parts(
@@ -78,20 +77,13 @@ mod tests {
 
     fn keyframe(id: usize, stamp: f64, odom_pose: Pose, pose: Pose) -> KeyFrame {
         KeyFrame {
-            id,
-            frame_index: id,
             stamp,
-            odom_pose,
             pose,
-            gt_pose: None,
-            track: Arc::new(KeyframeFeatures::default()),
-            view: KeyframeView::new(
-                1,
-                &image::RgbImage::new(1, 1),
+            ..crate::slam::keyframe_alignment::tests::keyframe(
+                id,
                 &DepthImage::new(1, 1),
-                &LabelImage::new(1, 1, 0),
-            ),
-            depth_scale: 1.0,
+                odom_pose,
+            )
         }
     }
 

@@ -218,7 +218,7 @@ pub fn keyframe_edges(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::dataset::LabelImage;
     use crate::geometry::Pose;
@@ -226,7 +226,7 @@ mod tests {
     use crate::slam::map::{KeyFrame, KeyframeFeatures, KeyframeView};
     use nalgebra::{Translation3, UnitQuaternion};
 
-    fn keyframe(id: usize, depth: &DepthImage, odom_pose: Pose) -> KeyFrame {
+    pub(crate) fn keyframe(id: usize, depth: &DepthImage, odom_pose: Pose) -> KeyFrame {
         let (w, h) = (depth.width, depth.height);
         KeyFrame {
             id,

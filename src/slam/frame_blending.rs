@@ -61,21 +61,21 @@ pub fn blend_frames(map: &Map, frames: &mut [FrameRecord]) -> usize {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::dataset::DepthImage;
     use crate::geometry::Pose;
     use crate::slam::map::KeyFrame;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
-    fn at(x: f64, yaw_deg: f64) -> Pose {
+    pub(crate) fn at(x: f64, yaw_deg: f64) -> Pose {
         Pose::from_parts(
             Translation3::new(x, 0.01 * x, 0.0),
             UnitQuaternion::from_axis_angle(&Vector3::y_axis(), yaw_deg.to_radians()),
         )
     }
 
-    fn keyframe(id: usize, stamp: f64, odom_pose: Pose, pose: Pose) -> KeyFrame {
+    pub(crate) fn keyframe(id: usize, stamp: f64, odom_pose: Pose, pose: Pose) -> KeyFrame {
         KeyFrame {
             stamp,
             pose,
@@ -87,7 +87,7 @@ mod tests {
         }
     }
 
-    fn record(
+    pub(crate) fn record(
         index: usize,
         keyframe: Option<usize>,
         reference: usize,
@@ -105,6 +105,7 @@ mod tests {
             correspondences: 0,
             observations: Vec::new(),
             dense: false,
+            step: None,
         }
     }
 

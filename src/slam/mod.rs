@@ -25,6 +25,7 @@ pub mod depth_edges;
 pub mod depth_sync;
 pub mod evaluation;
 pub mod frame_blending;
+pub mod frame_graph;
 pub mod keyframe_alignment;
 pub mod keypoints;
 pub mod local_bundle_adjustment;

@@ -10,6 +10,7 @@ use super::bundle_adjustment::{BaSummary, refine_frames};
 use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::frame_blending::blend_frames;
+use super::frame_graph::place_frames;
 use super::keyframe_alignment::{KeyframeAlignmentSummary, keyframe_edges};
 use super::keypoints::KeypointSource;
 use super::local_bundle_adjustment::LocalBaStats;
@@ -579,6 +580,14 @@ impl Slam {
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
         if config.correction.blend_frames {
             blend_frames(&read(&map), &mut run.frames);
+        }
+        if config.dense.frame_graph && !monocular {
+            let placed = place_frames(&read(&map), &mut run.frames, &config.dense);
+            (control.log)(&format!(
+                "frame graph: {} frames placed in {} spans between keyframes ({} held at both \
+                 ends)",
+                placed.frames, placed.spans, placed.closed
+            ));
         }
         mapper.refuse_all();
         timings.finalisation.add(t);

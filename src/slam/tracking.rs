@@ -66,6 +66,10 @@ pub struct FrameRecord {
     /// `relative` came from the dense refinement against the reference keyframe's depth
     /// (RGB-D, `dense.enabled`): the refinement after bundle adjustment keeps it as a prior.
     pub dense: bool,
+    /// `dense.frame_graph` (RGB-D): the previous frame's index and this frame's pose in its
+    /// camera frame (`T_prev⁻¹ T_this`) from aligning this frame's depth to the previous
+    /// frame's, when the alignment was kept.
+    pub step: Option<(usize, Pose)>,
 }
 
 /// A tracked frame's PnP inlier against its reference keyframe.
@@ -195,7 +199,14 @@ pub struct TrackingCounters {
     /// instant.
     #[serde(default)]
     pub depth_synced: usize,
+    /// `dense.frame_graph`: frames whose alignment to the previous frame was kept.
+    #[serde(default)]
+    pub frame_steps: usize,
 }
+
+/// `dense.frame_graph`: a frame's depth is kept every this many pixels as the next frame's
+/// model (a quarter of the keyframe model's samples; alignments sample every fourth pixel).
+const FRAME_MODEL_STEP: usize = 2;
 
 /// `dense.fused_model`: the fused surface is seen and fused at every this many pixels.
 const FUSED_STRIDE: u32 = 2;
@@ -213,6 +224,8 @@ pub struct Tracker {
     lost_streak: usize,
     /// The reference keyframe's depth for the dense refinement, with its keyframe id.
     dense_model: Option<(usize, DepthModel)>,
+    /// `dense.frame_graph`: the last frame's depth with its index and odometry pose.
+    frame_model: Option<(usize, Pose, DepthModel)>,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
     /// `dense.fused_model`: the surface fused from the tracked frames, and the rays of every
@@ -233,6 +246,7 @@ impl Tracker {
             velocity: Pose::identity(),
             lost_streak: 0,
             dense_model: None,
+            frame_model: None,
             rays: None,
             fused: None,
             counters: TrackingCounters::default(),
@@ -275,6 +289,52 @@ impl Tracker {
 
     /// Tracks one frame.
     pub fn track(&mut self, input: TrackInput<'_>) -> TrackOutput {
+        let sensor_depth = input.depth;
+        let mut out = self.track_frame(input);
+        if self.cfg.dense.frame_graph && !self.monocular {
+            // The depth tracking used: re-registered to the colour image's instant, or the
+            // sensor's.
+            let depth = out.depth.take();
+            self.frame_step(&mut out.record, depth.as_ref().or(sensor_depth));
+            out.depth = depth;
+        }
+        out
+    }
+
+    /// `dense.frame_graph`: the frame's depth aligned to the previous frame's, from the
+    /// tracked step between the two, kept in the record when it passes the refinement's gates
+    /// (`dense.min_inlier_fraction`, `dense.agree_*`); then the frame's depth, every
+    /// [`FRAME_MODEL_STEP`]-th pixel, becomes the next frame's model. Lost frames break the
+    /// chain.
+    fn frame_step(&mut self, record: &mut FrameRecord, depth: Option<&DepthImage>) {
+        let previous = self.frame_model.take();
+        let Some(depth) = depth.filter(|_| record.status != FrameStatus::Lost) else {
+            return;
+        };
+        let cfg = &self.cfg.dense;
+        let range = self.depth_range();
+        if let Some((index, pose, model)) = previous {
+            let initial = pose.inverse() * record.odom_pose;
+            let kept = align(&model, depth, None, &initial, range, cfg)
+                .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
+                .map(|a| renormalized(&a.pose))
+                .filter(|step| {
+                    let change = initial.inverse() * step;
+                    change.translation.vector.norm() <= cfg.agree_translation
+                        && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
+                });
+            self.counters.frame_steps += kept.is_some() as usize;
+            record.step = kept.map(|step| (index, step));
+        }
+        let camera = &self.camera;
+        let rays = self
+            .rays
+            .get_or_insert_with(|| Arc::new(RayTable::new(camera, 1)));
+        self.frame_model = DepthModel::new(depth, camera, rays.clone(), FRAME_MODEL_STEP, range)
+            .map(|model| (record.index, record.odom_pose, model));
+    }
+
+    fn track_frame(&mut self, input: TrackInput<'_>) -> TrackOutput {
         let mut events = Vec::new();
         let Some(reference) = self.reference else {
             return self.start(input, None, FrameStatus::Initialised, events);
@@ -414,6 +474,7 @@ impl Tracker {
             correspondences: corr.world.len(),
             observations,
             dense,
+            step: None,
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -466,6 +527,7 @@ impl Tracker {
                     correspondences: 0,
                     observations: Vec::new(),
                     dense: false,
+                    step: None,
                 },
                 keyframe: None,
                 events,
@@ -534,6 +596,7 @@ impl Tracker {
             correspondences: 0,
             observations: Vec::new(),
             dense: false,
+            step: None,
         };
         self.last = Some(LastFrame {
             index: input.index,
@@ -704,6 +767,7 @@ impl Tracker {
             correspondences: 0,
             observations: Vec::new(),
             dense: false,
+            step: None,
         };
         // Keep the last good frame for matching; only its pose moves on.
         if let Some(last) = &mut self.last {

@@ -357,6 +357,16 @@ pub struct DenseConfig {
     pub fused_truncation: f64,
     /// At most this many blocks of 8x8x8 voxels (4 KB each).
     pub fused_max_blocks: usize,
+    /// Tracking also aligns each frame's depth to the previous frame's, and after the back
+    /// end the frames between two keyframes are placed by a small pose graph of those
+    /// frame-to-frame steps and their alignments to the first keyframe, between both
+    /// keyframes' corrected poses ([`crate::slam::frame_graph`]).
+    pub frame_graph: bool,
+    /// In that graph, the weight (information) of a frame's dense pose against its reference
+    /// keyframe relative to a frame-to-frame step's, for the first frame after the keyframe;
+    /// the `k`-th frame's weighs `1/k` of it (a frame whose dense refinement was not kept: its
+    /// keypoint pose, a ninth of that).
+    pub frame_graph_reference_weight: f64,
 }
 
 /// One level of [`DenseConfig::levels`].
@@ -406,6 +416,8 @@ impl Default for DenseConfig {
             fused_voxel: 0.01,
             fused_truncation: 0.04,
             fused_max_blocks: 100_000,
+            frame_graph: false,
+            frame_graph_reference_weight: 1.0,
         }
     }
 }

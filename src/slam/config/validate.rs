@@ -218,6 +218,12 @@ impl SlamConfig {
             ));
         }
         count(d.fused_max_blocks, 1, 500_000, "dense.fused_max_blocks")?;
+        let w = d.frame_graph_reference_weight;
+        if !(w > 0.0 && w <= 1000.0) {
+            return Err(format!(
+                "dense.frame_graph_reference_weight must be in (0, 1000], got {w}"
+            ));
+        }
         Ok(())
     }
 
@@ -333,6 +339,13 @@ impl SlamConfig {
         }
         if self.correction.min_id_gap == 0 {
             return Err("correction.min_id_gap must be at least 1".into());
+        }
+        if self.correction.blend_frames && self.dense.frame_graph {
+            return Err(
+                "correction.blend_frames and dense.frame_graph both place the frames \
+                 between keyframes: turn one off"
+                    .into(),
+            );
         }
         pos(self.system.position_tolerance, "system.position_tolerance")?;
         Ok(())

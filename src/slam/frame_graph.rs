@@ -175,8 +175,7 @@ mod tests {
                 keyframe(0, 0.0, at(0.0, 0.0), at(0.0, 0.0)),
                 keyframe(1, 4.0, at(0.4, 0.0), at(0.42, 0.0)),
             ],
-            constraints: Vec::new(),
-            epoch: 0,
+            ..Map::default()
         };
         let mut frames = vec![record(0, Some(0), 0, Pose::identity())];
         for k in 1..4 {
@@ -187,9 +186,9 @@ mod tests {
             f.dense = true;
         }
         if steps {
-            for k in 1..5 {
+            for (k, f) in frames.iter_mut().enumerate().skip(1) {
                 let step = at(0.1 * (k - 1) as f64, 0.0).inverse() * at(0.1 * k as f64, 0.0);
-                frames[k].step = Some((k - 1, step));
+                f.step = Some((k - 1, step));
             }
         }
         (map, frames)

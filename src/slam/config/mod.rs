@@ -416,8 +416,8 @@ impl Default for DenseConfig {
             fused_voxel: 0.01,
             fused_truncation: 0.04,
             fused_max_blocks: 100_000,
-            frame_graph: false,
-            frame_graph_reference_weight: 1.0,
+            frame_graph: true,
+            frame_graph_reference_weight: 0.25,
         }
     }
 }
@@ -880,6 +880,8 @@ mod tests {
             ("bundle_adjustment", "depth_bf", "-1"),
             ("bundle_adjustment", "predicted_depth_bf", "inf"),
             ("bundle_adjustment", "edge_weight", "-1"),
+            ("dense", "frame_graph_reference_weight", "0"),
+            ("dense", "frame_graph_reference_weight", "1e9"),
         ] {
             let text = format!("[{section}]\n{field} = {value}\n");
             let e = SlamConfig::parse(&text, Path::new("c.toml"))
@@ -907,6 +909,16 @@ mod tests {
                 .to_string();
             assert!(e.contains("c.toml") && e.contains(needle), "{text}: {e}");
         }
+        // Two ways of placing the frames between keyframes: one at a time.
+        let e = SlamConfig::parse("[correction]\nblend_frames = true\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("correction.blend_frames and dense.frame_graph"),
+            "{e}"
+        );
+        let text = "[correction]\nblend_frames = true\n[dense]\nframe_graph = false\n";
+        assert!(SlamConfig::parse(text, Path::new("c.toml")).is_ok());
         let shipped = include_str!("../../../configs/slam/default.toml");
         assert_eq!(
             SlamConfig::parse(shipped, Path::new("configs/slam/default.toml")).unwrap(),

@@ -582,11 +582,15 @@ impl Slam {
             blend_frames(&read(&map), &mut run.frames);
         }
         if config.dense.frame_graph && !monocular {
+            let started = Instant::now();
             let placed = place_frames(&read(&map), &mut run.frames, &config.dense);
             (control.log)(&format!(
                 "frame graph: {} frames placed in {} spans between keyframes ({} held at both \
-                 ends)",
-                placed.frames, placed.spans, placed.closed
+                 ends), {:.1} ms",
+                placed.frames,
+                placed.spans,
+                placed.closed,
+                started.elapsed().as_secs_f64() * 1e3
             ));
         }
         mapper.refuse_all();

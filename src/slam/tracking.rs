@@ -232,6 +232,9 @@ pub struct Tracker {
     dense_model: Option<(usize, DepthModel)>,
     /// `dense.frame_graph`: the last frame's depth with its index and odometry pose.
     frame_model: Option<(usize, Pose, DepthModel)>,
+    /// `dense.frame_graph`: the alignment settings of a frame-to-frame step (`dense` at its
+    /// first level, [`FRAME_ITERATIONS`]).
+    step_alignment: DenseConfig,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
     /// `dense.fused_model`: the surface fused from the tracked frames, and the rays of every
@@ -242,7 +245,13 @@ pub struct Tracker {
 
 impl Tracker {
     pub fn new(cfg: SlamConfig, camera: Camera, monocular: bool) -> Self {
+        let step_alignment = DenseConfig {
+            levels: cfg.dense.levels.iter().take(1).cloned().collect(),
+            iterations: FRAME_ITERATIONS,
+            ..cfg.dense.clone()
+        };
         Tracker {
+            step_alignment,
             cfg,
             camera,
             monocular,
@@ -320,12 +329,7 @@ impl Tracker {
         let range = self.depth_range();
         if let Some((index, pose, model)) = previous {
             let initial = pose.inverse() * record.odom_pose;
-            let coarse = DenseConfig {
-                levels: cfg.levels[..1].to_vec(),
-                iterations: FRAME_ITERATIONS,
-                ..cfg.clone()
-            };
-            let kept = align(&model, depth, None, &initial, range, &coarse)
+            let kept = align(&model, depth, None, &initial, range, &self.step_alignment)
                 .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
                 .map(|a| renormalized(&a.pose))
                 .filter(|step| {

@@ -317,6 +317,16 @@ pub struct Alignment {
 }
 
 impl Alignment {
+    /// Whether an alignment started from `initial` passes a frame refinement's gates: it
+    /// pairs `dense.min_inlier_fraction` of the frame's points and moves `initial` by at most
+    /// `dense.agree_translation` and `dense.agree_rotation_deg`.
+    pub fn passes_frame_gates(&self, initial: &Pose, cfg: &DenseConfig) -> bool {
+        let change = initial.inverse() * self.pose;
+        self.inliers as f64 >= cfg.min_inlier_fraction * self.points as f64
+            && change.translation.vector.norm() <= cfg.agree_translation
+            && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
+    }
+
     /// Whether an alignment started from `initial` passes the keyframe edges' gates
     /// (`dense.edge_*`): it pairs `edge_min_inlier_fraction` of the frame's points and moves
     /// `initial` by at most `edge_agree_translation` and `edge_agree_rotation_deg`.

@@ -222,7 +222,7 @@ mod tests {
     }
 
     #[test]
-    fn without_steps_or_without_a_keyframe_nothing_moves() {
+    fn without_steps_from_the_record_before_nothing_moves() {
         let (map, mut frames) = scene(false);
         let before = frames.clone();
         assert_eq!(

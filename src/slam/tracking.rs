@@ -309,9 +309,7 @@ impl Tracker {
         if self.cfg.dense.frame_graph && !self.monocular {
             // The depth tracking used: re-registered to the colour image's instant, or the
             // sensor's.
-            let depth = out.depth.take();
-            self.frame_step(&mut out.record, depth.as_ref().or(sensor_depth));
-            out.depth = depth;
+            self.frame_step(&mut out.record, out.depth.as_ref().or(sensor_depth));
         }
         out
     }
@@ -325,18 +323,12 @@ impl Tracker {
         let Some(depth) = depth.filter(|_| record.status != FrameStatus::Lost) else {
             return;
         };
-        let cfg = &self.cfg.dense;
         let range = self.depth_range();
         if let Some((index, pose, model)) = previous {
             let initial = pose.inverse() * record.odom_pose;
             let kept = align(&model, depth, None, &initial, range, &self.step_alignment)
-                .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
-                .map(|a| renormalized(&a.pose))
-                .filter(|step| {
-                    let change = initial.inverse() * step;
-                    change.translation.vector.norm() <= cfg.agree_translation
-                        && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
-                });
+                .filter(|a| a.passes_frame_gates(&initial, &self.cfg.dense))
+                .map(|a| renormalized(&a.pose));
             self.counters.frame_steps += kept.is_some() as usize;
             record.step = kept.map(|step| (index, step));
         }
@@ -654,13 +646,8 @@ impl Tracker {
         let kf_pose = self.keyframes[reference].pose;
         let initial = kf_pose.inverse() * pose;
         let kept = align(model, depth, None, &initial, self.depth_range(), cfg)
-            .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
-            .map(|a| a.pose)
-            .filter(|refined| {
-                let change = initial.inverse() * refined;
-                change.translation.vector.norm() <= cfg.agree_translation
-                    && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
-            });
+            .filter(|a| a.passes_frame_gates(&initial, cfg))
+            .map(|a| a.pose);
         match kept {
             Some(refined) => {
                 self.counters.dense_kept += 1;
@@ -711,12 +698,8 @@ impl Tracker {
         let seen = tsdf.raycast(pose, rays, frame, range, max_distance, 1.0);
         let model = DepthModel::new(&seen, &self.camera, rays.clone(), 1, range)?;
         let refined = align(&model, frame, None, &Pose::identity(), range, cfg)
-            .filter(|a| a.inliers as f64 >= cfg.min_inlier_fraction * a.points as f64)
-            .map(|a| a.pose)
-            .filter(|change| {
-                change.translation.vector.norm() <= cfg.agree_translation
-                    && change.rotation.angle().to_degrees() <= cfg.agree_rotation_deg
-            })?;
+            .filter(|a| a.passes_frame_gates(&Pose::identity(), cfg))
+            .map(|a| a.pose)?;
         self.counters.dense_kept += 1;
         self.counters.fused_kept += 1;
         Some(renormalized(&(pose * refined)))

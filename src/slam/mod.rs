@@ -18,6 +18,7 @@
 
 pub mod bundle_adjustment;
 pub mod cholesky;
+pub mod colour_instant;
 pub mod config;
 pub mod correction;
 pub mod depth_alignment;

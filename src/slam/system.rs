@@ -7,6 +7,7 @@
 //! the final pose graph is solved from the tracked poses with all constraints.
 
 use super::bundle_adjustment::{BaSummary, refine_frames};
+use super::colour_instant::move_to_colour_instants;
 use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
 use super::frame_blending::blend_frames;
@@ -591,6 +592,17 @@ impl Slam {
                 placed.spans,
                 placed.closed,
                 started.elapsed().as_secs_f64() * 1e3
+            ));
+        }
+        if config.tracking.colour_instant && !config.tracking.sync_depth && !monocular {
+            let depth_offset = |i: usize| {
+                let f = &sequence.frames[i];
+                f.depth_stamp.map_or(0.0, |t| t - f.rgb_stamp)
+            };
+            let moved = move_to_colour_instants(&read(&map), &mut run.frames, depth_offset);
+            (control.log)(&format!(
+                "colour instant: {moved} frames moved from their depth image's instant to their \
+                 colour image's"
             ));
         }
         mapper.refuse_all();

@@ -246,6 +246,11 @@ pub struct TrackingConfig {
     /// motion between the two stamps, at the frame's own velocity
     /// ([`crate::slam::depth_sync`]; TUM's Kinect streams are not synchronised).
     pub sync_depth: bool,
+    /// RGB-D mode: after the back end, move each frame's pose from its depth image's instant
+    /// to its colour image's (the trajectory's stamps), along the trajectory
+    /// ([`crate::slam::colour_instant`]); frames whose stamps are equal do not move. Off with
+    /// `sync_depth`, whose depth is already the colour instant's.
+    pub colour_instant: bool,
     /// A keypoint whose depth reading lies on a depth discontinuity, by the test of
     /// [`crate::slam::depth_edges`] over `keypoint_edge_reach` pixels, gets no 3D point
     /// (neither as a keyframe's point nor as a frame's depth observation; a ratio or a reach
@@ -265,6 +270,7 @@ impl Default for TrackingConfig {
             reinitialise_after: 10,
             start_at_ground_truth: true,
             sync_depth: false,
+            colour_instant: true,
             keypoint_edge_ratio: 0.0,
             keypoint_edge_reach: 3,
         }

@@ -616,6 +616,10 @@ fn poses_are_moved_from_the_depth_instant_to_the_colour_instant() {
         }
     }
     assert_ne!(a.poses, b.poses);
+    // The odd frames after the first, tracked with the previous one (the report counts them).
+    assert_eq!(off.colour_instant, 0);
+    assert!(on.colour_instant >= 10, "{}", on.colour_instant);
+    assert!(on.colour_instant <= 12, "{}", on.colour_instant);
     let gt = TumSequence::open(seq.path()).unwrap().groundtruth.unwrap();
     let per_frame = |t: &sdf_slam::trajectory::Trajectory| {
         let r = rpe(&gt, t, Alignment::Se3, 0.02, 1.0, DeltaUnit::Frames).unwrap();

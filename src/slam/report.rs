@@ -102,6 +102,10 @@ pub struct TrackingReport {
     /// `tracking.sync_depth`: frames whose depth was re-registered to its colour instant.
     #[serde(default)]
     pub depth_synced: usize,
+    /// `tracking.colour_instant`: frames whose pose was moved from their depth image's
+    /// instant to their colour image's.
+    #[serde(default)]
+    pub colour_instant: usize,
 }
 
 /// Everything `report.json` holds.
@@ -221,6 +225,7 @@ impl Report {
                 dense_rejected: t.dense_rejected,
                 fused_kept: t.fused_kept,
                 depth_synced: t.depth_synced,
+                colour_instant: out.colour_instant,
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
@@ -318,6 +323,13 @@ impl Report {
                 s,
                 "| depth moved to the colour instant | {} frames |",
                 self.tracking.depth_synced
+            );
+        }
+        if self.tracking.colour_instant > 0 {
+            let _ = writeln!(
+                s,
+                "| poses moved to the colour instant | {} frames |",
+                self.tracking.colour_instant
             );
         }
         let _ = writeln!(
@@ -564,6 +576,13 @@ impl Report {
                 s,
                 "depth moved to its colour image's instant on {} frames",
                 self.tracking.depth_synced
+            );
+        }
+        if self.tracking.colour_instant > 0 {
+            let _ = writeln!(
+                s,
+                "poses moved from the depth's instant to the colour's on {} frames",
+                self.tracking.colour_instant
             );
         }
         let _ = writeln!(s, "speed {:.2} frames/s overall; per stage:", self.fps);

@@ -189,6 +189,9 @@ pub struct SlamOutput {
     /// Multi-view depth of monocular keyframes, summed over keyframes.
     pub multiview: SweepSummary,
     pub tracking: TrackingCounters,
+    /// `tracking.colour_instant`: frames whose pose was moved from their depth image's instant
+    /// to their colour image's.
+    pub colour_instant: usize,
     pub correction: CorrectionStats,
     /// Frames that could not be read, with the reason.
     pub skipped: Vec<(usize, String)>,
@@ -594,15 +597,16 @@ impl Slam {
                 started.elapsed().as_secs_f64() * 1e3
             ));
         }
+        let mut colour_instant = 0;
         if config.tracking.colour_instant && !config.tracking.sync_depth && !monocular {
             let depth_offset = |i: usize| {
                 let f = &sequence.frames[i];
                 f.depth_stamp.map_or(0.0, |t| t - f.rgb_stamp)
             };
-            let moved = move_to_colour_instants(&read(&map), &mut run.frames, depth_offset);
+            colour_instant = move_to_colour_instants(&read(&map), &mut run.frames, depth_offset);
             (control.log)(&format!(
-                "colour instant: {moved} frames moved from their depth image's instant to their \
-                 colour image's"
+                "colour instant: {colour_instant} frames moved from their depth image's instant \
+                 to their colour image's"
             ));
         }
         mapper.refuse_all();
@@ -635,6 +639,7 @@ impl Slam {
             keyframe_alignment,
             multiview,
             tracking: run.tracker.counters.clone(),
+            colour_instant,
             correction: correction.corrector.stats,
             skipped: run.skipped,
             semantic_failures: failures,

@@ -32,13 +32,9 @@ pub fn move_to_colour_instants(
     frames: &mut [FrameRecord],
     depth_offset: impl Fn(usize) -> f64,
 ) -> usize {
-    let pose = |r: &FrameRecord| match r.reference.and_then(|k| map.keyframes.get(k)) {
-        Some(kf) => kf.pose * r.relative,
-        None => r.odom_pose,
-    };
     let tracked = |r: &FrameRecord| r.status != FrameStatus::Lost;
     let offsets: Vec<f64> = frames.iter().map(|r| depth_offset(r.index)).collect();
-    let poses: Vec<Pose> = frames.iter().map(pose).collect();
+    let poses: Vec<Pose> = frames.iter().map(|r| r.pose_in(map)).collect();
     let mut moved = 0;
     for i in 0..frames.len() {
         let offset = offsets[i];

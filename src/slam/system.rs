@@ -214,10 +214,7 @@ impl SlamOutput {
     /// Final pose of a frame: its reference keyframe's corrected pose composed
     /// with the tracked relative pose.
     pub fn frame_pose(&self, r: &FrameRecord) -> Pose {
-        match r.reference.and_then(|k| self.map.keyframes.get(k)) {
-            Some(kf) => kf.pose * r.relative,
-            None => r.odom_pose,
-        }
+        r.pose_in(&self.map)
     }
 
     /// Every processed frame, TUM convention.

@@ -19,7 +19,7 @@ use super::config::{DenseConfig, LOCAL_CANDIDATES, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
 use super::depth_sync;
 use super::keypoints::{KeyFeatures, similarity};
-use super::map::{KeyframeFeatures, KeypointDepth, ViewBounds, points_from_depth};
+use super::map::{KeyframeFeatures, KeypointDepth, Map, ViewBounds, points_from_depth};
 use super::tsdf::{Tsdf, TsdfParams};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
@@ -70,6 +70,17 @@ pub struct FrameRecord {
     /// camera frame (`T_prev⁻¹ T_this`) from aligning this frame's depth to the previous
     /// frame's, when the alignment was kept.
     pub step: Option<(usize, Pose)>,
+}
+
+impl FrameRecord {
+    /// The frame's final pose: its reference keyframe's pose in `map` composed with the
+    /// tracked relative pose (the odometry pose without a reference in `map`).
+    pub fn pose_in(&self, map: &Map) -> Pose {
+        match self.reference.and_then(|k| map.keyframes.get(k)) {
+            Some(kf) => kf.pose * self.relative,
+            None => self.odom_pose,
+        }
+    }
 }
 
 /// A tracked frame's PnP inlier against its reference keyframe.

@@ -382,11 +382,47 @@ impl Trajectory {
             s,
         ))
     }
+
+    /// The trajectory read at `stamps` by [`Trajectory::pose_at`]: stamps it cannot give a
+    /// pose for (farther than `max_gap` from every sample) are left out, and so are stamps
+    /// that are not strictly increasing.
+    pub fn resampled_at(&self, stamps: &[f64], max_gap: f64) -> Trajectory {
+        let mut out = Trajectory::new();
+        for &t in stamps {
+            if let Some(pose) = self.pose_at(t, max_gap) {
+                // Not after the last stamp: left out, as documented.
+                let _ = out.push(t, pose);
+            }
+        }
+        out
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn resampling_interpolates_and_leaves_out_what_it_cannot_read() {
+        // 100 Hz, moving 1 m/s along x and turning 1 rad/s about y.
+        let at = |t: f64| {
+            Pose::from_parts(
+                nalgebra::Translation3::new(t, 0.0, 0.0),
+                nalgebra::UnitQuaternion::from_scaled_axis(nalgebra::Vector3::y() * t),
+            )
+        };
+        let mut gt = Trajectory::new();
+        for k in 0..=100 {
+            gt.push(k as f64 / 100.0, at(k as f64 / 100.0)).unwrap();
+        }
+        let r = gt.resampled_at(&[0.0123, 0.5, 0.5, 0.4, 0.777, 1.2, 2.0], 0.01);
+        assert_eq!(r.stamps, vec![0.0123, 0.5, 0.777]);
+        for (t, p) in r.stamps.iter().zip(&r.poses) {
+            let e = at(*t).inverse() * p;
+            assert!(e.translation.vector.norm() < 1e-12, "{t}");
+            assert!(e.rotation.angle() < 1e-9, "{t}");
+        }
+    }
 
     #[test]
     fn association_is_greedy_and_unique() {

@@ -52,6 +52,13 @@ pub struct FrameInfo {
     pub depth_path: Option<PathBuf>,
 }
 
+impl FrameInfo {
+    /// The depth image's stamp minus the colour image's, seconds (0 without a depth image).
+    pub fn depth_offset(&self) -> f64 {
+        self.depth_stamp.map_or(0.0, |t| t - self.rgb_stamp)
+    }
+}
+
 /// A loaded frame.
 #[derive(Debug, Clone)]
 pub struct Frame {

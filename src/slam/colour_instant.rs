@@ -15,10 +15,13 @@
 //! frame when the depth came after the colour (the usual case), towards the next frame when
 //! it came before, at that step's velocity ([`super::depth_sync::motion_over`]: interpolation,
 //! never more than the step). The neighbours' poses are read before any frame moves. Frames
-//! without an offset (7-Scenes, registered offline with equal stamps; monocular runs) and
-//! frames without a tracked neighbour keep their poses, to the bit. The map's keyframes do
-//! not move: only the trajectory written for the frames does (each record's relative pose).
-//! With `tracking.sync_depth` the depth is already at the colour's instant, so this is off.
+//! without an offset (7-Scenes, registered offline with equal stamps; monocular runs), frames
+//! without a tracked neighbour of the next or previous index, and frames whose offset is
+//! longer than the step to that neighbour or whose neighbour's depth is not on the colour
+//! instant's side keep their poses, to the bit. The map's keyframes do not move: only the
+//! trajectory written for the frames does, keyframes' own frames included (each record's
+//! relative pose, or its odometry pose without a reference keyframe). With
+//! `tracking.sync_depth` the depth is already at the colour's instant, so this is off.
 
 use super::depth_sync::{MIN_OFFSET_S, motion_over};
 use super::map::Map;
@@ -54,11 +57,12 @@ pub fn move_to_colour_instants(
             continue;
         };
         let depth_stamp = |k: usize| frames[k].stamp + offsets[k];
-        // `T_i⁻¹ T_j` over the time from i's depth to j's, followed for the offset's time.
+        // `T_i⁻¹ T_j` over the time from i's depth to j's, followed for the offset's time
+        // towards j. A neighbour whose depth is not on the colour instant's side (stamps out
+        // of order) gives no positive duration, and the frame is left alone.
+        let duration = (depth_stamp(j) - depth_stamp(i)) * -offset.signum();
         let step = poses[i].inverse() * poses[j];
-        let Some(motion) =
-            motion_over(&step, (depth_stamp(j) - depth_stamp(i)).abs(), offset.abs())
-        else {
+        let Some(motion) = motion_over(&step, duration, offset.abs()) else {
             continue;
         };
         let r = &mut frames[i];
@@ -159,6 +163,17 @@ mod tests {
             0
         );
         assert_eq!(frames, before);
+        // An offset longer than the step from the previous frame's depth (its depth came after
+        // this frame's colour), a NaN offset, and a previous frame whose depth came after this
+        // frame's (stamps out of order): nothing moves.
+        for (o1, o0) in [(0.040, 0.035), (f64::NAN, 0.0), (0.010, 0.070)] {
+            let offsets = [o0, o1];
+            let (map, mut frames) = turning(&offsets.map(|o| if o.is_nan() { 0.0 } else { o }));
+            let before = frames.clone();
+            let moved = move_to_colour_instants(&map, &mut frames, |i| offsets[i]);
+            assert_eq!(moved, 0, "offsets {offsets:?}");
+            assert_eq!(frames, before, "offsets {offsets:?}");
+        }
         // No offsets at all (7-Scenes): nothing moves.
         let (map, mut frames) = turning(&[0.0; 4]);
         let before = frames.clone();

@@ -266,9 +266,9 @@ fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
         })
     } else {
         let f = seq.load_frame(i)?;
-        let depth_offset = match (&f.depth, seq.frames[i].depth_stamp) {
-            (Some(_), Some(t)) => t - seq.frames[i].rgb_stamp,
-            _ => 0.0,
+        let depth_offset = match &f.depth {
+            Some(_) => seq.frames[i].depth_offset(),
+            None => 0.0,
         };
         Ok(Loaded {
             rgb: f.rgb,
@@ -596,10 +596,7 @@ impl Slam {
         }
         let mut colour_instant = 0;
         if config.tracking.colour_instant && !config.tracking.sync_depth && !monocular {
-            let depth_offset = |i: usize| {
-                let f = &sequence.frames[i];
-                f.depth_stamp.map_or(0.0, |t| t - f.rgb_stamp)
-            };
+            let depth_offset = |i: usize| sequence.frames[i].depth_offset();
             colour_instant = move_to_colour_instants(&read(&map), &mut run.frames, depth_offset);
             (control.log)(&format!(
                 "colour instant: {colour_instant} frames moved from their depth image's instant \

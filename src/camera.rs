@@ -184,6 +184,18 @@ impl Camera {
         }
     }
 
+    /// The camera of a TUM-layout sequence: `spec` (a preset or a file) when given, else
+    /// the folder's `camera.toml` when it has one (7-Scenes conversions do), else TUM's
+    /// freiburg1 camera. `slam`, `eval matching` and FPFDCNN training choose it this way.
+    pub fn for_sequence(spec: Option<&str>, sequence: &Path) -> Result<Self> {
+        let file = sequence.join("camera.toml");
+        match spec {
+            Some(s) => Self::load(s),
+            None if file.is_file() => Self::from_file(&file),
+            None => Ok(Self::tum_fr1()),
+        }
+    }
+
     /// Writes the camera as TOML (atomically).
     pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
         let text = toml::to_string_pretty(self)?;

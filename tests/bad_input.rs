@@ -126,6 +126,57 @@ fn corrupt_images(dir: &Path) {
     }
 }
 
+/// The fixture sequence whose every depth image reads 0 (no reading).
+fn zero_depth(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    for e in std::fs::read_dir(dir.join("seq/depth")).unwrap() {
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::new(640, 480)
+            .save(e.unwrap().path())
+            .unwrap();
+    }
+}
+
+/// The fixture sequence whose ground truth starts 100 s after its last image.
+fn late_ground_truth(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    let p = dir.join("seq/groundtruth.txt");
+    let text = std::fs::read_to_string(&p).unwrap();
+    let lines: Vec<String> = text
+        .lines()
+        .map(|l| match l.split_once(' ') {
+            Some((stamp, rest)) if !l.starts_with('#') => {
+                format!("{} {rest}", stamp.parse::<f64>().unwrap() + 100.0)
+            }
+            _ => l.to_string(),
+        })
+        .collect();
+    std::fs::write(&p, lines.join("\n")).unwrap();
+}
+
+/// The fixture sequence with a `camera.toml` of 320x240 for its 640x480 images.
+fn small_camera_file(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    sdf_slam::camera::Camera::tum_fr1()
+        .resized(320, 240)
+        .save(dir.join("seq/camera.toml"))
+        .unwrap();
+}
+
+/// The FPFDCNN smoke config training on `seq` (the case's damaged copy of the fixture),
+/// with `camera = "fr1"` or without a `camera` key.
+fn training_on_copy(with_camera: bool) -> String {
+    let fixture = format!(
+        "path = \"{}/datasets/fixtures/tum_fr1_rpy_head10\"\ncamera = \"fr1\"",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    let to = if with_camera {
+        "path = \"seq\"\ncamera = \"fr1\""
+    } else {
+        "path = \"seq\""
+    };
+    tiny_training_config(&fixture, to)
+}
+
 /// Multiplies every float parameter by NaN.
 struct Poison;
 
@@ -337,6 +388,22 @@ fn corpus() -> Vec<Case> {
             &["no frame of seq could be processed"],
         )
         .setup(corrupt_images),
+        // Sequences that cannot be scored or trained on.
+        case("matching on depth that reads 0", "eval", &["matching", "--sequence", "seq", "--orb-only", "--gap", "1", "--pairs", "2"], &["seq", "valid depth pixel"])
+            .setup(zero_depth),
+        case("matching without ground truth at the frames", "eval", &["matching", "--sequence", "seq", "--orb-only", "--gap", "1", "--pairs", "2"], &["seq", "ground-truth pose"])
+            .setup(late_ground_truth),
+        case("matching with the folder's camera too small", "eval", &["matching", "--sequence", "seq", "--orb-only", "--gap", "1", "--pairs", "2"], &["seq/rgb", "640x480", "320x240"])
+            .setup(small_camera_file),
+        case("FPFDCNN training on depth that reads 0", "train", &["--config", "t.toml", "--out", "out"], &["seq", "valid depth pixel"])
+            .file("t.toml", &training_on_copy(true))
+            .setup(zero_depth),
+        case("FPFDCNN training without ground truth at the frames", "train", &["--config", "t.toml", "--out", "out"], &["seq", "ground truth"])
+            .file("t.toml", &training_on_copy(true))
+            .setup(late_ground_truth),
+        case("FPFDCNN training with the folder's camera too small", "train", &["--config", "t.toml", "--out", "out"], &["seq", "640x480", "320x240"])
+            .file("t.toml", &training_on_copy(false))
+            .setup(small_camera_file),
         // Trajectories (eval ate).
         case("position 1e300", "eval", &["ate", "gt.txt", "est.txt"], &["gt.txt:1", "out of range"])
             .file("gt.txt", "1.0 1e300 0 0 0 0 0 1\n2.0 1e300 0 0 0 0 0 1\n")
@@ -376,6 +443,8 @@ fn corpus() -> Vec<Case> {
             .file("t.toml", &tiny_training_config("lr = 0.001", "lr = nan")),
         case("zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
             .file("t.toml", &tiny_training_config("epochs = 2", "epochs = 0")),
+        case("SDFCNN step of 67 million pixels", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "million pixels"])
+            .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "inner_size = [96, 128]", "inner_size = [8192, 8192]")),
         case("SDFCNN zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
             .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "epochs = 60", "epochs = 0")),
         case("SDFCNN NaN gradient clip", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "grad_clip_norm"])

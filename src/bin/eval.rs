@@ -69,9 +69,10 @@ struct MatchingArgs {
     /// TUM-layout sequence with depth and ground truth.
     #[arg(long)]
     sequence: PathBuf,
-    /// Camera: fr1, fr2, fr3 or a camera TOML file.
-    #[arg(long, default_value = "fr1")]
-    camera: String,
+    /// Camera: fr1, fr2, fr3 or a camera TOML file [default: the sequence's camera.toml if
+    /// it has one, else fr1].
+    #[arg(long)]
+    camera: Option<String>,
     /// Frame gap of the pairs (i, i + gap).
     #[arg(long, default_value_t = 5)]
     gap: usize,
@@ -273,6 +274,12 @@ fn read(path: &PathBuf) -> Result<Trajectory> {
 /// The reference and the estimate of `a`; with `--interpolate` the reference read at the
 /// estimate's stamps.
 fn read_pair(a: &TrajArgs) -> Result<(Trajectory, Trajectory)> {
+    if !(a.t_max_diff.is_finite() && a.t_max_diff >= 0.0 && a.t_max_diff <= 3600.0) {
+        anyhow::bail!(
+            "--t-max-diff must be in [0, 3600] seconds, got {}",
+            a.t_max_diff
+        );
+    }
     let (gt, est) = (read(&a.reference)?, read(&a.estimate)?);
     let gt = if a.interpolate {
         gt.resampled_at(&est.stamps, a.t_max_diff)
@@ -365,7 +372,7 @@ fn matching(a: MatchingArgs) -> Result<()> {
         Some(refine)
     };
     let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
-    let cam = sdf_slam::camera::Camera::load(&a.camera)?;
+    let cam = sdf_slam::camera::Camera::for_sequence(a.camera.as_deref(), &a.sequence)?;
     let weights = match (&a.fpfdcnn, a.orb_only) {
         (_, true) => None,
         (Some(p), _) => Some(p.clone()),
@@ -496,6 +503,8 @@ fn main() -> Result<()> {
             keyframes,
         } => {
             let (gt, est) = read_pair(&a)?;
+            // Read before any result is printed: a bad file fails the command up front.
+            let keyframe_stamps = keyframes.as_ref().map(read).transpose()?;
             let r = metrics::rpe(&gt, &est, a.align, a.t_max_diff, delta, delta_unit)
                 .context("RPE failed")?;
             let unit = match delta_unit {
@@ -509,10 +518,7 @@ fn main() -> Result<()> {
             );
             print_stats("translation part (m)", "m", &r.trans);
             print_stats("rotation angle (deg)", "deg", &r.rot_deg);
-            let split = match &keyframes {
-                Some(p) => Some(r.at_keyframes(&read(p)?.stamps)),
-                None => None,
-            };
+            let split = keyframe_stamps.map(|k| r.at_keyframes(&k.stamps));
             if let Some(split) = &split {
                 for (name, part) in [
                     ("within one keyframe's span", &split.within),

@@ -343,13 +343,7 @@ fn main() -> Result<()> {
     let (features, fpfdcnn_ckpt, keypoints) = keypoint_source(&cli, &config)?;
     let (labels, sdfcnn_ckpt, sdfcnn) = sdfcnn_source(&cli)?;
     let (sequence_path, sequence) = open_sequence(&cli)?;
-    let camera = match &cli.camera {
-        Some(spec) => Camera::load(spec)?,
-        None if sequence_path.join("camera.toml").is_file() => {
-            Camera::from_file(sequence_path.join("camera.toml"))?
-        }
-        None => Camera::tum_fr1(),
-    };
+    let camera = Camera::for_sequence(cli.camera.as_deref(), &sequence_path)?;
     let semantics: Box<dyn SemanticSource> = match (labels, sdfcnn) {
         (LabelsArg::Sdfcnn, Some(s)) => Box::new(s.with_camera(&camera)),
         (LabelsArg::Gt, _) => Box::new(GroundTruthSource::open(

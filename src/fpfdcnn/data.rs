@@ -34,9 +34,11 @@ use std::path::PathBuf;
 pub struct SequenceSource {
     /// TUM-layout folder with depth and ground truth.
     pub path: PathBuf,
-    /// Camera preset (`fr1`, `fr2`, `fr3`) or camera TOML file.
-    #[serde(default = "default_camera")]
-    pub camera: String,
+    /// Camera preset (`fr1`, `fr2`, `fr3`) or camera TOML file; when absent, the
+    /// sequence's own `camera.toml` if it has one (7-Scenes conversions do), else `fr1`
+    /// (TUM's freiburg1 sequences), as `slam` chooses.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
     /// How many times this sequence's pairs enter the training and validation pools
     /// (weights a small real sequence against larger synthetic ones; frames load once).
     #[serde(default = "default_repeat")]
@@ -62,10 +64,6 @@ pub struct SequenceSource {
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
-}
-
-fn default_camera() -> String {
-    "fr1".into()
 }
 
 fn default_repeat() -> usize {
@@ -668,7 +666,7 @@ mod tests {
     fn source(path: impl Into<PathBuf>) -> SequenceSource {
         SequenceSource {
             path: path.into(),
-            camera: "fr1".into(),
+            camera: Some("fr1".into()),
             repeat: 1,
             homographies: 0,
             frames: None,
@@ -864,7 +862,7 @@ mod tests {
             .unwrap();
         let cfg = FpDataConfig {
             sequences: vec![SequenceSource {
-                camera: cam.display().to_string(),
+                camera: Some(cam.display().to_string()),
                 ..source(&path)
             }],
             sampling: Sampling::Resize,

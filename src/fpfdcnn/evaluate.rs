@@ -481,10 +481,25 @@ pub fn evaluate(
     for (k, &(i, j)) in pairs.iter().enumerate() {
         progress(k, pairs.len());
         let (a, b) = (seq.load_frame(i)?, seq.load_frame(j)?);
+        for (f, k) in [(&a, i), (&b, j)] {
+            if (f.rgb.width(), f.rgb.height()) != (cam.width, cam.height) {
+                return Err(Error::invalid(
+                    &seq.frames[k].rgb_path,
+                    format!(
+                        "image is {}x{} but the camera `{}` is {}x{}",
+                        f.rgb.width(),
+                        f.rgb.height(),
+                        cam.name,
+                        cam.width,
+                        cam.height
+                    ),
+                ));
+            }
+        }
         let (Some(pose_a), Some(pose_b)) = (a.gt_pose, b.gt_pose) else {
             continue;
         };
-        if a.depth.is_none() {
+        if a.depth.as_ref().is_none_or(|d| d.valid_fraction() == 0.0) {
             continue;
         }
         used.push((i, j));
@@ -579,6 +594,17 @@ pub fn evaluate(
         }
     }
     progress(pairs.len(), pairs.len());
+    if used.is_empty() {
+        return Err(Error::invalid(
+            &seq.root,
+            format!(
+                "none of the {} selected pairs can be scored: each needs a ground-truth pose \
+                 for both frames (groundtruth.txt within the association window of their \
+                 stamps) and a valid depth pixel in its first frame",
+                pairs.len()
+            ),
+        ));
+    }
     let finish = |mut v: Vec<Acc>| {
         let blurred = (v.len() > 1).then(|| v.pop().map(Acc::finish).unwrap_or_default());
         MethodResult {

@@ -63,7 +63,7 @@ pub(super) fn open_source(
             format!("val_fraction must be in [0, 1), got {v}"),
         ));
     }
-    let camera = Camera::load(&src.camera)?;
+    let camera = Camera::for_sequence(src.camera.as_deref(), &src.path)?;
     if !seq.has_depth() || seq.groundtruth.is_none() {
         return Err(Error::invalid(
             &src.path,
@@ -111,8 +111,10 @@ pub(super) fn add_sequence(
             val.frames.push(f)
         }
     }
+    let mut posed = 0;
     for pair in posed_pairs(seq, camera, cfg, size) {
-        let (a, b, matches) = pair?;
+        let (a, b, matches) = pair.map_err(|e| Error::invalid(&src.path, e.to_string()))?;
+        posed += 1;
         if b < cut {
             train.pairs.push(PairEntry {
                 a: offset_train + a,
@@ -128,6 +130,9 @@ pub(super) fn add_sequence(
                 homography: false,
             });
         }
+    }
+    if posed == 0 {
+        return Err(Error::invalid(&src.path, no_pairs_reason(seq)));
     }
     for f in offset_train..train.frames.len() {
         for _ in 0..src.homographies {
@@ -148,6 +153,26 @@ pub(super) fn add_sequence(
         val.pairs.extend_from_within(val_block.clone());
     }
     Ok(())
+}
+
+/// Why a sequence gave no posed pair with at least 8 ground-truth matches: no valid depth
+/// pixel in any frame, or (depth being there) ground truth, gaps and overlap.
+fn no_pairs_reason(seq: &TumSequence) -> String {
+    let any_depth = (0..seq.len())
+        .any(|i| matches!(seq.load_depth(i), Ok(Some(d)) if d.valid_fraction() > 0.0));
+    if any_depth {
+        format!(
+            "none of its {} frames forms a posed pair with at least 8 ground-truth matches \
+             (eqs 5-7): check its ground truth and the pairs' gaps",
+            seq.len()
+        )
+    } else {
+        format!(
+            "none of its {} frames has a valid depth pixel (0 = no reading): FPFDCNN's posed \
+             pairs need depth",
+            seq.len()
+        )
+    }
 }
 
 /// Every frame of `seq` as stored (full resolution when cropping, else resized to

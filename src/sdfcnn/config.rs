@@ -255,9 +255,32 @@ impl SdfcnnTrainConfig {
         .iter()
         .flatten()
         .all(|s| s.iter().all(|&v| v <= MAX_SIDE));
-        if !sizes_ok || self.batch_size > 4096 {
+        if !sizes_ok || self.batch_size > 1024 {
             return Err(format!(
-                "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 4096"
+                "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 1024"
+            ));
+        }
+        // What one step holds in memory grows with the pixels it pushes through the network
+        // (the paper's batch: 20 images of 480x640, 6.1 million pixels).
+        const MAX_STEP_PIXELS: usize = 1 << 25;
+        let step_images = self.batch_size.div_ceil(self.accumulate.max(1));
+        let largest = [
+            Some(self.data.size),
+            self.data.val_size,
+            Some(self.network.inner_size),
+        ]
+        .iter()
+        .flatten()
+        .map(|[h, w]| h * w)
+        .max()
+        .unwrap_or(0);
+        if step_images * largest > MAX_STEP_PIXELS {
+            return Err(format!(
+                "one step would push {step_images} images of up to {largest} pixels through the \
+                 network ({} million pixels; at most {} million: lower batch_size, raise \
+                 accumulate or shrink data.size / network.inner_size)",
+                step_images * largest / 1_000_000,
+                MAX_STEP_PIXELS / 1_000_000
             ));
         }
         self.optimizer.validate()?;

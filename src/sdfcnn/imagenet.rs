@@ -16,12 +16,15 @@
 //! Layer2_1), which starts as the identity (1×1 identity weights, batch norm with unit
 //! variance and zero mean): its input is already ReLU6-clipped, so the ImageNet network is
 //! reproduced exactly up to BN's ε. `features.18` (the 320→1280 head conv) has no counterpart
-//! in SDFCNN and is ignored; any other tensor the table does not name, a missing tensor, or
-//! one of another shape is an error naming the tensor and the file.
+//! in SDFCNN and is ignored; any other tensor the table does not name, a missing tensor, one
+//! of another shape, of a non-float type or holding a value that is not finite is an error
+//! naming the tensor and the file. F16, BF16 and F64 tensors are converted to F32.
 
 use burn::module::Param;
 use burn::prelude::*;
+use burn::store::burn_pack::{Bytes, DType, Tensor as PackTensor};
 use burn::store::{ModuleSnapshot, ModuleStore, SafetensorsStore};
+use burn::tensor::{bf16, f16};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -109,7 +112,7 @@ pub fn torchvision_names() -> Vec<(String, String)> {
 /// encoder (see the module docs) and makes Layer2's expansion the identity.
 pub fn load_imagenet(mut model: Sdfcnn, path: &Path) -> Result<(Sdfcnn, ImagenetLoad)> {
     let mut store = SafetensorsStore::from_file(path);
-    let file: BTreeMap<String, burn::store::burn_pack::Tensor> = store
+    let file: BTreeMap<String, PackTensor> = store
         .get_all_tensors()
         .map_err(|e| Error::invalid(path, format!("cannot read safetensors: {e}")))?
         .clone();
@@ -141,9 +144,15 @@ pub fn load_imagenet(mut model: Sdfcnn, path: &Path) -> Result<(Sdfcnn, Imagenet
                 ),
             ));
         }
-        let mut t = t.clone();
-        t.name = our.clone();
-        renamed.push(t);
+        let values = float_values(t, theirs, path)?;
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        renamed.push(PackTensor::new(
+            our.clone(),
+            DType::F32,
+            t.shape.clone(),
+            t.param_id,
+            Bytes::from_bytes_vec(bytes),
+        ));
     }
     let named: std::collections::HashSet<&str> = table.iter().map(|(_, t)| t.as_str()).collect();
     let mut ignored = Vec::new();
@@ -183,6 +192,66 @@ pub fn load_imagenet(mut model: Sdfcnn, path: &Path) -> Result<(Sdfcnn, Imagenet
             ignored,
         },
     ))
+}
+
+/// The values of the file's tensor `theirs` as `f32`. torchvision's weights are F32; F16,
+/// BF16 and F64 files are converted. Another element type, a byte length that does not fit
+/// the shape, or a value that is not finite is an error naming the tensor and the file.
+fn float_values(t: &PackTensor, theirs: &str, path: &Path) -> Result<Vec<f32>> {
+    let bytes = t
+        .to_bytes()
+        .map_err(|e| Error::invalid(path, format!("tensor {theirs}: cannot read its data: {e}")))?;
+    let b: &[u8] = &bytes;
+    let values: Vec<f32> = match t.dtype {
+        DType::F32 => b
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        DType::F64 => b
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]) as f32)
+            .collect(),
+        DType::F16 => b
+            .chunks_exact(2)
+            .map(|c| f16::from_bits(u16::from_le_bytes([c[0], c[1]])).to_f32())
+            .collect(),
+        DType::BF16 => b
+            .chunks_exact(2)
+            .map(|c| bf16::from_bits(u16::from_le_bytes([c[0], c[1]])).to_f32())
+            .collect(),
+        other => {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "tensor {theirs} holds {other:?} values; SDFCNN's weights are read from \
+                     F32, F16, BF16 or F64 tensors"
+                ),
+            ));
+        }
+    };
+    let want = t.shape.num_elements();
+    if values.len() != want || b.len() != want * t.dtype.size() {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "tensor {theirs} holds {} bytes, its shape {:?} of {:?} needs {}",
+                b.len(),
+                t.shape.as_slice(),
+                t.dtype,
+                want * t.dtype.size()
+            ),
+        ));
+    }
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "tensor {theirs} holds a value that is not finite ({} at element {i})",
+                values[i]
+            ),
+        ));
+    }
+    Ok(values)
 }
 
 /// An identity 1×1 convolution weight `[c, c, 1, 1]`.
@@ -285,17 +354,42 @@ pub(crate) mod tests {
 
     /// Writes a safetensors file whose tensor `k` is filled with `(k + 1) / 1000`.
     fn write_safetensors(path: &Path, tensors: &[(String, Vec<usize>)]) {
+        write_typed(path, tensors, &[], None);
+    }
+
+    /// [`write_safetensors`] with the tensors named in `types` stored as that safetensors
+    /// dtype (F32, F64, F16, BF16 or I64), and the first value of `nan` NaN.
+    fn write_typed(
+        path: &Path,
+        tensors: &[(String, Vec<usize>)],
+        types: &[(&str, &str)],
+        nan: Option<&str>,
+    ) {
         let mut header = serde_json::Map::new();
         let mut data = Vec::new();
         for (k, (name, shape)) in tensors.iter().enumerate() {
             let n: usize = shape.iter().product();
             let start = data.len();
-            for _ in 0..n {
-                data.extend_from_slice(&((k + 1) as f32 / 1000.0).to_le_bytes());
+            let dtype = types
+                .iter()
+                .find(|(t, _)| t == name)
+                .map_or("F32", |(_, d)| *d);
+            for i in 0..n {
+                let mut v = (k + 1) as f32 / 1000.0;
+                if i == 0 && nan == Some(name.as_str()) {
+                    v = f32::NAN;
+                }
+                match dtype {
+                    "F64" => data.extend_from_slice(&(v as f64).to_le_bytes()),
+                    "F16" => data.extend_from_slice(&f16::from_f32(v).to_le_bytes()),
+                    "BF16" => data.extend_from_slice(&bf16::from_f32(v).to_le_bytes()),
+                    "I64" => data.extend_from_slice(&(k as i64).to_le_bytes()),
+                    _ => data.extend_from_slice(&v.to_le_bytes()),
+                }
             }
             header.insert(
                 name.clone(),
-                serde_json::json!({"dtype": "F32", "shape": shape, "data_offsets": [start, data.len()]}),
+                serde_json::json!({"dtype": dtype, "shape": shape, "data_offsets": [start, data.len()]}),
             );
         }
         let mut json = serde_json::to_vec(&header).expect("json");
@@ -417,6 +511,57 @@ pub(crate) mod tests {
             std::fs::remove_dir_all(path.parent().expect("dir")).ok();
         }
         shapes.clear();
+    }
+
+    #[test]
+    fn half_and_double_tensors_are_converted_and_other_types_or_nan_named() {
+        let shapes = torchvision_shapes();
+        let index: BTreeMap<&str, usize> = shapes
+            .iter()
+            .enumerate()
+            .map(|(k, (n, _))| (n.as_str(), k))
+            .collect();
+        let types = [
+            ("features.0.0.weight", "F16"),
+            ("features.5.conv.1.0.weight", "BF16"),
+            ("features.17.conv.3.running_var", "F64"),
+        ];
+        let path = tmp("typed");
+        write_typed(&path, &shapes, &types, None);
+        let (loaded, _) = load_imagenet(model(), &path).expect("F16, BF16 and F64 convert");
+        let got = values(&loaded);
+        for (ours, theirs) in torchvision_names() {
+            if let Some((_, dtype)) = types.iter().find(|(t, _)| *t == theirs) {
+                let want = (index[theirs.as_str()] + 1) as f32 / 1000.0;
+                let tol = if *dtype == "F64" { 1e-7 } else { want / 100.0 };
+                assert!(
+                    got[&ours].iter().all(|&v| (v - want).abs() <= tol),
+                    "{ours} from {dtype}: {:?} against {want}",
+                    &got[&ours][..2]
+                );
+            }
+        }
+        // (tensor types, the tensor given a NaN, what the error says)
+        type BadCase<'a> = (&'a [(&'a str, &'a str)], Option<&'a str>, &'a str);
+        let bad: [BadCase; 3] = [
+            (&[("features.9.conv.1.0.weight", "I64")], None, "I64"),
+            (&[], Some("features.12.conv.0.1.running_var"), "not finite"),
+            (
+                &[("features.2.conv.0.1.weight", "F16")],
+                Some("features.2.conv.0.1.weight"),
+                "not finite",
+            ),
+        ];
+        for (k, (types, nan, what)) in bad.iter().enumerate() {
+            write_typed(&path, &shapes, types, *nan);
+            let name = nan.unwrap_or_else(|| types[0].0);
+            let e = load_imagenet(model(), &path).expect_err(name).to_string();
+            assert!(
+                e.contains(name) && e.contains("mnv2.safetensors") && e.contains(what),
+                "case {k}: {e}"
+            );
+        }
+        std::fs::remove_dir_all(path.parent().expect("dir")).ok();
     }
 
     #[test]

@@ -460,11 +460,18 @@ pub fn evaluate(
     }
     let pairs = select_pairs(seq.len(), cfg);
     if pairs.is_empty() {
-        return Err(Error::msg(format!(
-            "{}: not enough frames for pairs {} apart",
-            seq.root.display(),
-            cfg.gap
-        )));
+        let last = cfg.last.unwrap_or(seq.len()).min(seq.len());
+        return Err(Error::invalid(
+            &seq.root,
+            format!(
+                "not enough frames for pairs {} apart between frame {} (--first) and frame {} \
+                 (--last; the sequence has {} frames)",
+                cfg.gap,
+                cfg.first,
+                last,
+                seq.len()
+            ),
+        ));
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     let conditions = if cfg.blur.is_some() { 2 } else { 1 };

@@ -443,7 +443,7 @@ fn corpus() -> Vec<Case> {
             .file("t.toml", &tiny_training_config("lr = 0.001", "lr = nan")),
         case("zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
             .file("t.toml", &tiny_training_config("epochs = 2", "epochs = 0")),
-        case("SDFCNN step of 67 million pixels", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "million pixels"])
+        case("SDFCNN step of 201 million pixels", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "million pixels"])
             .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "inner_size = [96, 128]", "inner_size = [8192, 8192]")),
         case("SDFCNN zero epochs", "train", &["--config", "t.toml", "--out", "out"], &["t.toml", "epochs"])
             .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "epochs = 60", "epochs = 0")),

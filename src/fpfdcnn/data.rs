@@ -62,6 +62,37 @@ pub struct SequenceSource {
     pub gt_time_offset_ms: f64,
 }
 
+impl SequenceSource {
+    /// The camera this sequence trains with, as a `camera` value: the given one, else the
+    /// folder's `camera.toml` (its path; `fr1` when it holds freiburg1's intrinsics, as
+    /// `synth`'s sequences do), else `fr1` ([`crate::camera::Camera::for_sequence`]).
+    /// Training writes it into the config it saves beside the run, so the saved config says
+    /// which camera the run used, and `--resume` of a run saved before sequences read their
+    /// folder's camera (`camera = "fr1"` written for every sequence) still matches.
+    pub fn resolved_camera(&self) -> String {
+        use crate::camera::Camera;
+        let file = self.path.join("camera.toml");
+        match &self.camera {
+            Some(c) => c.clone(),
+            None if file.is_file() => {
+                let fr1 = Camera::tum_fr1();
+                match Camera::from_file(&file) {
+                    Ok(c)
+                        if (Camera {
+                            name: fr1.name.clone(),
+                            ..c
+                        }) == fr1 =>
+                    {
+                        "fr1".into()
+                    }
+                    _ => file.display().to_string(),
+                }
+            }
+            None => "fr1".into(),
+        }
+    }
+}
+
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
@@ -909,6 +940,61 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    #[test]
+    fn a_sequence_without_posed_pairs_is_named_unless_it_trains_on_homographies() {
+        let path = fixture();
+        // Frames [0, 1): no pair at the smallest gap (1).
+        let build = |homographies: usize| {
+            let cfg = FpDataConfig {
+                sequences: vec![SequenceSource {
+                    frames: Some([0, 1]),
+                    val_fraction: Some(0.0),
+                    homographies,
+                    ..source(&path)
+                }],
+                sampling: Sampling::Crop,
+                ..Default::default()
+            };
+            FpDataset::build(&cfg, [96, 128], |_| {})
+        };
+        let err = build(0).err().unwrap().to_string();
+        assert!(
+            err.contains("tum_fr1_rpy_head10") && err.contains("too few for a pair"),
+            "{err}"
+        );
+        let (train, _) = build(2).unwrap();
+        assert_eq!(train.pairs.len(), 2);
+        assert!(train.pairs.iter().all(|p| p.homography));
+    }
+
+    #[test]
+    fn the_saved_camera_is_the_one_used() {
+        let dir = std::env::temp_dir().join(format!("sdf_fp_resolved_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let entry = |camera: Option<&str>| SequenceSource {
+            camera: camera.map(String::from),
+            ..source(&dir)
+        };
+        // No camera.toml: fr1, as configs saved before sequences read their folder's camera.
+        assert_eq!(entry(None).resolved_camera(), "fr1");
+        assert_eq!(entry(Some("fr2")).resolved_camera(), "fr2");
+        // freiburg1's intrinsics under another name (synth's sequences): still fr1.
+        let file = dir.join("camera.toml");
+        crate::camera::Camera {
+            name: "synthetic".into(),
+            ..crate::camera::Camera::tum_fr1()
+        }
+        .save(&file)
+        .unwrap();
+        assert_eq!(entry(None).resolved_camera(), "fr1");
+        // Another camera: its file.
+        crate::camera::Camera::pinhole(640, 480, 527.0, 527.0, 323.0, 236.0)
+            .save(&file)
+            .unwrap();
+        assert_eq!(entry(None).resolved_camera(), file.display().to_string());
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

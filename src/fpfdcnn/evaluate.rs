@@ -460,15 +460,17 @@ pub fn evaluate(
     }
     let pairs = select_pairs(seq.len(), cfg);
     if pairs.is_empty() {
-        let last = cfg.last.unwrap_or(seq.len()).min(seq.len());
+        let last = match cfg.last {
+            Some(l) => format!("frame {} (--last)", l.min(seq.len())),
+            None => "the end".into(),
+        };
         return Err(Error::invalid(
             &seq.root,
             format!(
-                "not enough frames for pairs {} apart between frame {} (--first) and frame {} \
-                 (--last; the sequence has {} frames)",
+                "not enough frames for pairs {} apart between frame {} (--first) and {last}; \
+                 the sequence has {} frames",
                 cfg.gap,
                 cfg.first,
-                last,
                 seq.len()
             ),
         ));
@@ -488,10 +490,10 @@ pub fn evaluate(
     for (k, &(i, j)) in pairs.iter().enumerate() {
         progress(k, pairs.len());
         let (a, b) = (seq.load_frame(i)?, seq.load_frame(j)?);
-        for (f, k) in [(&a, i), (&b, j)] {
+        for (f, index) in [(&a, i), (&b, j)] {
             if (f.rgb.width(), f.rgb.height()) != (cam.width, cam.height) {
                 return Err(Error::invalid(
-                    &seq.frames[k].rgb_path,
+                    &seq.frames[index].rgb_path,
                     format!(
                         "image is {}x{} but the camera `{}` is {}x{}",
                         f.rgb.width(),

@@ -5,7 +5,7 @@
 use super::data::{FpDataConfig, FpDataset, FrameEntry, PairEntry, Sampling, SequenceSource};
 use super::data::{inside, resize_gray};
 use crate::camera::Camera;
-use crate::dataset::fp_pairs::{FpMatch, fp_pairs};
+use crate::dataset::fp_pairs::{FpMatch, fp_pairs, pair_indices};
 use crate::dataset::tum::{TumConfig, TumSequence};
 use crate::error::{Error, Result};
 use crate::raster::GrayF32;
@@ -113,7 +113,15 @@ pub(super) fn add_sequence(
     }
     let mut posed = 0;
     for pair in posed_pairs(seq, camera, cfg, size) {
-        let (a, b, matches) = pair.map_err(|e| Error::invalid(&src.path, e.to_string()))?;
+        let (a, b, matches) = pair.map_err(|e| {
+            let from = match src.frames {
+                Some([first, _]) if first > 0 => {
+                    format!(" (frame numbers count from frame {first}, the start of `frames`)")
+                }
+                _ => String::new(),
+            };
+            Error::invalid(&src.path, format!("{e}{from}"))
+        })?;
         posed += 1;
         if b < cut {
             train.pairs.push(PairEntry {
@@ -131,8 +139,10 @@ pub(super) fn add_sequence(
             });
         }
     }
-    if posed == 0 {
-        return Err(Error::invalid(&src.path, no_pairs_reason(seq)));
+    if posed == 0
+        && let Some(reason) = no_pairs_reason(seq, &cfg.pairs.gaps, src.homographies > 0)
+    {
+        return Err(Error::invalid(&src.path, reason));
     }
     for f in offset_train..train.frames.len() {
         for _ in 0..src.homographies {
@@ -155,24 +165,34 @@ pub(super) fn add_sequence(
     Ok(())
 }
 
-/// Why a sequence gave no posed pair with at least 8 ground-truth matches: no valid depth
-/// pixel in any frame, or (depth being there) ground truth, gaps and overlap.
-fn no_pairs_reason(seq: &TumSequence) -> String {
-    let any_depth = (0..seq.len())
-        .any(|i| matches!(seq.load_depth(i), Ok(Some(d)) if d.valid_fraction() > 0.0));
-    if any_depth {
+/// Why a sequence gave no posed pair with at least 8 ground-truth matches, when that is an
+/// error: no valid depth pixel in any frame always; too few frames for the smallest gap, or
+/// pairs with too few matches, unless the sequence trains on its homography pairs.
+fn no_pairs_reason(seq: &TumSequence, gaps: &[usize], homographies: bool) -> Option<String> {
+    let n = seq.len();
+    let any_depth =
+        (0..n).any(|i| matches!(seq.load_depth(i), Ok(Some(d)) if d.valid_fraction() > 0.0));
+    if !any_depth {
+        return Some(format!(
+            "none of its {n} frames has a valid depth pixel (0 = no reading): FPFDCNN's posed \
+             pairs need depth"
+        ));
+    }
+    if homographies {
+        return None;
+    }
+    Some(if pair_indices(n, gaps).is_empty() {
         format!(
-            "none of its {} frames forms a posed pair with at least 8 ground-truth matches \
-             (eqs 5-7): check its ground truth and the pairs' gaps",
-            seq.len()
+            "its {n} frames are too few for a pair at the smallest gap ({}): widen `frames` \
+             or lower `[data.pairs] gaps`",
+            gaps.iter().min().copied().unwrap_or(0)
         )
     } else {
         format!(
-            "none of its {} frames has a valid depth pixel (0 = no reading): FPFDCNN's posed \
-             pairs need depth",
-            seq.len()
+            "none of its {n} frames forms a posed pair with at least 8 ground-truth matches \
+             (eqs 5-7): check its depth, its ground truth and the pairs' gaps"
         )
-    }
+    })
 }
 
 /// Every frame of `seq` as stored (full resolution when cropping, else resized to

@@ -212,6 +212,9 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         .check_training("FPFDCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
     let device = cfg.backend.autodiff_device()?;
+    for src in &mut cfg.data.sequences {
+        src.camera = Some(src.resolved_camera());
+    }
     let saved = toml::to_string_pretty(&cfg)?;
     let mut run = RunDir::prepare_normalized(&cfg.out, &saved, opts.resume, |text, path| {
         let c = FpfdcnnTrainConfig::parse_saved(text, path)?;

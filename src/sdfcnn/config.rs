@@ -277,10 +277,10 @@ impl SdfcnnTrainConfig {
         if step_images * largest > MAX_STEP_PIXELS {
             return Err(format!(
                 "one step would push {step_images} images of up to {largest} pixels through the \
-                 network ({} million pixels; at most {} million: lower batch_size, raise \
-                 accumulate or shrink data.size / network.inner_size)",
-                step_images * largest / 1_000_000,
-                MAX_STEP_PIXELS / 1_000_000
+                 network ({:.1} million pixels; at most {:.1} million: lower batch_size, raise \
+                 accumulate or shrink data.size / data.val_size / network.inner_size)",
+                (step_images * largest) as f64 / 1e6,
+                MAX_STEP_PIXELS as f64 / 1e6
             ));
         }
         self.optimizer.validate()?;

@@ -16,8 +16,9 @@
 //! Layer2_1), which starts as the identity (1×1 identity weights, batch norm with unit
 //! variance and zero mean): its input is already ReLU6-clipped, so the ImageNet network is
 //! reproduced exactly up to BN's ε. `features.18` (the 320→1280 head conv) has no counterpart
-//! in SDFCNN and is ignored; any other tensor the table does not name, a missing tensor, one
-//! of another shape, of a non-float type or holding a value that is not finite is an error
+//! in SDFCNN and is ignored, as are batch norm's `num_batches_tracked` counters; any other
+//! tensor the table does not name, a missing tensor, one of another shape, of a non-float
+//! type or holding a value that is not finite (or, F64, beyond f32's range) is an error
 //! naming the tensor and the file. F16, BF16 and F64 tensors are converted to F32.
 
 use burn::module::Param;
@@ -34,13 +35,16 @@ use crate::error::{Error, Result};
 
 /// torchvision tensors with no counterpart in SDFCNN (the 1280-channel head), ignored.
 const IGNORED_PREFIX: &str = "features.18.";
+/// Batch norm's step counters (I64 scalars), which a file saved straight from torchvision's
+/// `state_dict` holds; SDFCNN's batch norm keeps none, so they are ignored.
+const IGNORED_SUFFIX: &str = ".num_batches_tracked";
 
 /// What [`load_imagenet`] did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImagenetLoad {
     /// Tensors copied into the encoder.
     pub loaded: usize,
-    /// File tensors ignored (`features.18.*`).
+    /// File tensors ignored (`features.18.*`, `*.num_batches_tracked`).
     pub ignored: Vec<String>,
 }
 
@@ -160,7 +164,7 @@ pub fn load_imagenet(mut model: Sdfcnn, path: &Path) -> Result<(Sdfcnn, Imagenet
         if named.contains(name.as_str()) {
             continue;
         }
-        if name.starts_with(IGNORED_PREFIX) {
+        if name.starts_with(IGNORED_PREFIX) || name.ends_with(IGNORED_SUFFIX) {
             ignored.push(name.clone());
         } else {
             return Err(Error::invalid(
@@ -207,10 +211,22 @@ fn float_values(t: &PackTensor, theirs: &str, path: &Path) -> Result<Vec<f32>> {
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect(),
-        DType::F64 => b
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]) as f32)
-            .collect(),
+        DType::F64 => {
+            let wide: Vec<f64> = b
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+                .collect();
+            if let Some(v) = wide
+                .iter()
+                .find(|v| v.is_finite() && v.abs() > f32::MAX as f64)
+            {
+                return Err(Error::invalid(
+                    path,
+                    format!("tensor {theirs} holds {v}, beyond the range of f32"),
+                ));
+            }
+            wide.into_iter().map(|v| v as f32).collect()
+        }
         DType::F16 => b
             .chunks_exact(2)
             .map(|c| f16::from_bits(u16::from_le_bytes([c[0], c[1]])).to_f32())
@@ -527,8 +543,19 @@ pub(crate) mod tests {
             ("features.17.conv.3.running_var", "F64"),
         ];
         let path = tmp("typed");
-        write_typed(&path, &shapes, &types, None);
-        let (loaded, _) = load_imagenet(model(), &path).expect("F16, BF16 and F64 convert");
+        // torchvision's state_dict also holds batch norm's I64 step counters: ignored.
+        let mut with_counter = shapes.clone();
+        with_counter.push(("features.3.conv.0.1.num_batches_tracked".into(), vec![]));
+        let mut counter_types = types.to_vec();
+        counter_types.push(("features.3.conv.0.1.num_batches_tracked", "I64"));
+        write_typed(&path, &with_counter, &counter_types, None);
+        let (loaded, report) = load_imagenet(model(), &path).expect("F16, BF16 and F64 convert");
+        assert!(
+            report
+                .ignored
+                .iter()
+                .any(|n| n.ends_with(".num_batches_tracked"))
+        );
         let got = values(&loaded);
         for (ours, theirs) in torchvision_names() {
             if let Some((_, dtype)) = types.iter().find(|(t, _)| *t == theirs) {

@@ -76,6 +76,17 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         ));
     }
 
+    let model = cfg
+        .network
+        .to_config()
+        .init(&device)
+        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
+    let mut model = seeded_init(model, cfg.seed);
+    // The starting weights are read before the run folder is made: a bad `init` file leaves
+    // nothing behind.
+    if let (Some(init), false) = (&cfg.init, opts.resume) {
+        model = initialise(model, init, &train, &cfg)?;
+    }
     // Saved with every default and the paths as read from here, so the copy beside a
     // checkpoint means the same wherever it is read from.
     let saved = toml::to_string_pretty(&cfg)?;
@@ -85,15 +96,6 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         Ok(Some(toml::to_string_pretty(&c)?))
     })?;
     run.keep = cfg.keep_checkpoints;
-    let model = cfg
-        .network
-        .to_config()
-        .init(&device)
-        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
-    let mut model = seeded_init(model, cfg.seed);
-    if let (Some(init), false) = (&cfg.init, opts.resume) {
-        model = initialise(model, init, &train, &cfg)?;
-    }
     println!(
         "SDFCNN: {} training samples, {} validation samples, {} on {}, batch {}, {} epochs -> {}",
         train.len(),
@@ -228,8 +230,9 @@ fn initialise(
         .is_some_and(|e| e.eq_ignore_ascii_case("safetensors"));
     if !is_safetensors {
         let (weights, config) = crate::training::resolve_checkpoint(init)?;
+        let model = load_weights(model, &weights, &config)?;
         println!("initialised from {}", weights.display());
-        return load_weights(model, &weights, &config);
+        return Ok(model);
     }
     let (model, report) = super::imagenet::load_imagenet(model, init)?;
     // The mapping check: batch-norm input means against the stored running means.

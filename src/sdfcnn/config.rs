@@ -247,14 +247,15 @@ impl SdfcnnTrainConfig {
             ));
         }
         const MAX_SIDE: usize = 8192;
-        let sizes_ok = [
+        let sizes: Vec<[usize; 2]> = [
             Some(self.data.size),
             self.data.val_size,
             Some(self.network.inner_size),
         ]
-        .iter()
+        .into_iter()
         .flatten()
-        .all(|s| s.iter().all(|&v| v <= MAX_SIDE));
+        .collect();
+        let sizes_ok = sizes.iter().all(|s| s.iter().all(|&v| v <= MAX_SIDE));
         if !sizes_ok || self.batch_size > 1024 {
             return Err(format!(
                 "image sizes must be at most {MAX_SIDE} pixels a side and batch_size at most 1024"
@@ -264,16 +265,7 @@ impl SdfcnnTrainConfig {
         // (the paper's batch: 20 images of 480x640, 6.1 million pixels).
         const MAX_STEP_PIXELS: usize = 1 << 25;
         let step_images = self.batch_size.div_ceil(self.accumulate.max(1));
-        let largest = [
-            Some(self.data.size),
-            self.data.val_size,
-            Some(self.network.inner_size),
-        ]
-        .iter()
-        .flatten()
-        .map(|[h, w]| h * w)
-        .max()
-        .unwrap_or(0);
+        let largest = sizes.iter().map(|[h, w]| h * w).max().unwrap_or(0);
         if step_images * largest > MAX_STEP_PIXELS {
             return Err(format!(
                 "one step would push {step_images} images of up to {largest} pixels through the \

@@ -71,24 +71,21 @@ impl SequenceSource {
     /// folder's camera (`camera = "fr1"` written for every sequence) still matches.
     pub fn resolved_camera(&self) -> String {
         use crate::camera::Camera;
-        let file = self.path.join("camera.toml");
-        match &self.camera {
-            Some(c) => c.clone(),
-            None if file.is_file() => {
-                let fr1 = Camera::tum_fr1();
-                match Camera::from_file(&file) {
-                    Ok(c)
-                        if (Camera {
-                            name: fr1.name.clone(),
-                            ..c
-                        }) == fr1 =>
-                    {
-                        "fr1".into()
-                    }
-                    _ => file.display().to_string(),
-                }
+        if let Some(c) = &self.camera {
+            return c.clone();
+        }
+        let fr1 = Camera::tum_fr1();
+        match Camera::for_sequence(None, &self.path) {
+            Ok(c)
+                if (Camera {
+                    name: fr1.name.clone(),
+                    ..c
+                }) == fr1 =>
+            {
+                "fr1".into()
             }
-            None => "fr1".into(),
+            // Another camera, or a file that does not read (opening the sequence says why).
+            _ => self.path.join("camera.toml").display().to_string(),
         }
     }
 }

@@ -23,7 +23,8 @@ use crate::features::match_refine::{MatchRefineConfig, refine_matches};
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
-    CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, match_errors, repeatability,
+    CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, match_error_vectors,
+    repeatability, within_common_offset,
 };
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
@@ -120,6 +121,11 @@ pub struct ConditionResult {
     /// wrong partners.
     #[serde(default)]
     pub within_px: Vec<(f64, f64)>,
+    /// Share of judged matches within 5 px of their pair's common offset
+    /// ([`crate::metrics::matching::within_common_offset`]): the accuracy with each pair's
+    /// shared ground-truth error taken out (a diagnostic beside `accuracy`).
+    #[serde(default)]
+    pub offset_removed_accuracy: f64,
     /// Keypoint repeatability within 3 px, both directions pooled
     /// ([`crate::metrics::matching::Repeatability`]): how many keypoints the other image
     /// detects again, whatever their descriptors.
@@ -186,6 +192,7 @@ struct Acc {
     keypoints: usize,
     images: usize,
     errors: Vec<f64>,
+    within_offset: usize,
     repeat: Vec<Repeatability>,
     derotated: usize,
     refined: usize,
@@ -212,6 +219,7 @@ impl Acc {
             derotated_pairs: self.derotated,
             refined_matches: self.refined,
             keypoints: self.keypoints as f64 / self.images.max(1) as f64,
+            offset_removed_accuracy: self.within_offset as f64 / self.errors.len().max(1) as f64,
             within_px: [2.0, 5.0, 10.0, 20.0]
                 .iter()
                 .map(|&t| {
@@ -382,8 +390,11 @@ fn score(
         .depth
         .as_ref()
         .ok_or_else(|| Error::msg(format!("frame {} has no depth", a.index)))?;
-    let errors = match_errors(matches, depth, cam, pose_a, pose_b)?;
+    let vectors = match_error_vectors(matches, depth, cam, pose_a, pose_b)?;
+    let errors: Vec<Option<f64>> = vectors.iter().map(|e| e.map(|v| v.norm())).collect();
     let judged: Vec<f64> = errors.iter().flatten().copied().collect();
+    let judged_vectors: Vec<_> = vectors.into_iter().flatten().collect();
+    acc.within_offset += within_common_offset(&judged_vectors, CORRECT_MATCH_PX);
     acc.acc.push(MatchingAccuracy::new(
         judged.iter().filter(|e| **e <= CORRECT_MATCH_PX).count(),
         judged.len(),
@@ -792,7 +803,7 @@ pub fn markdown(r: &MatchingReport) -> String {
         format!("; FPFDCNN keypoints: {}", r.fpfdcnn_detector)
     };
     let mut s = format!(
-        "Sequence `{}`, {} pairs {} frames apart{}{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px | repeatability (3 px) | matching score |\n|---|---|---|---|---|---|---|\n",
+        "Sequence `{}`, {} pairs {} frames apart{}{}; range matcher: {}{detector}\n\n| Scenario | Method | Accuracy (correct / matches) | keypoints / image | % within 2 / 5 / 10 / 20 px | % within 5 px of the pair's offset | repeatability (3 px) | matching score |\n|---|---|---|---|---|---|---|---|\n",
         r.sequence,
         r.pairs.len(),
         r.gap,
@@ -813,7 +824,7 @@ pub fn markdown(r: &MatchingReport) -> String {
     }
     let row = |s: &mut String, scen: &str, name: &str, c: &ConditionResult| {
         s.push_str(&format!(
-            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} | {} | {:.1} % | {:.1} % |\n",
+            "| {scen} | {name} | {:.1} % ({}/{}) | {:.0} | {} | {:.1} % | {:.1} % | {:.1} % |\n",
             100.0 * c.accuracy,
             c.correct,
             c.matches,
@@ -823,6 +834,7 @@ pub fn markdown(r: &MatchingReport) -> String {
                 .map(|(_, f)| format!("{:.0}", 100.0 * f))
                 .collect::<Vec<_>>()
                 .join(" / "),
+            100.0 * c.offset_removed_accuracy,
             100.0 * c.repeatability,
             100.0 * c.matching_score,
         ));

@@ -4,7 +4,7 @@
 use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::dataset::photometric::Degradation;
-use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown};
+use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown, per_pair_markdown};
 use std::path::Path;
 
 #[test]
@@ -48,6 +48,17 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
             "{}",
             c.offset_removed_accuracy
         );
+        // Per pair, in the report's order, summing to the totals.
+        assert_eq!(c.pairs.len(), 3);
+        assert_eq!(
+            c.pairs.iter().map(|p| (p.a, p.b)).collect::<Vec<_>>(),
+            report.pairs
+        );
+        assert_eq!(c.pairs.iter().map(|p| p.correct).sum::<usize>(), c.correct);
+        assert_eq!(c.pairs.iter().map(|p| p.matches).sum::<usize>(), c.matches);
+        let within: usize = c.pairs.iter().map(|p| p.within_offset).sum();
+        assert_eq!(within as f64 / c.matches as f64, c.offset_removed_accuracy);
+        assert!(c.pairs.iter().all(|p| p.offset_px.is_some()));
         assert_eq!(c.pnp_failures, 0);
         // Keypoints found again within 3 px of their true position in the other image,
         // and correct matches per visible keypoint: printed to record the measured values.
@@ -84,6 +95,9 @@ fn orb_matches_on_real_frames_are_scored_and_drawn() {
     assert!(table.contains("| Clear | ORB + BF matcher |"));
     assert!(table.contains("repeatability (3 px) | matching score"));
     assert!(table.contains("% within 5 px of the pair's offset |"));
+    let per_pair = per_pair_markdown(&report);
+    assert!(per_pair.contains("Clear pairs") && per_pair.contains("Blurred pairs"));
+    assert!(per_pair.contains("| 2-5 | "), "{per_pair}");
 }
 
 /// `roll_deg` turns image B about its centre before matching and maps the matches back:

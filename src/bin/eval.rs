@@ -205,6 +205,11 @@ struct MatchingArgs {
     /// Write the tables as markdown.
     #[arg(long)]
     markdown: Option<PathBuf>,
+    /// Also print each pair's figures: accuracy, the pair's common offset (the median of
+    /// its match errors: where the ground truth itself is off) and the share within 5 px of
+    /// it, per method (the JSON always has them).
+    #[arg(long)]
+    per_pair: bool,
     /// Write a picture of the matches on the middle pair (green correct, red wrong); JPEG
     /// when the name ends in .jpg, else PNG.
     #[arg(long)]
@@ -302,7 +307,7 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
 }
 
 fn matching(a: MatchingArgs) -> Result<()> {
-    use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown};
+    use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown, per_pair_markdown};
     use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
     // A backend not compiled in, or without a device, fails before any data is read.
     a.backend.check()?;
@@ -442,7 +447,10 @@ fn matching(a: MatchingArgs) -> Result<()> {
         bar.set_position(k as u64);
     })?;
     bar.finish_and_clear();
-    let md = markdown(&report);
+    let mut md = markdown(&report);
+    if a.per_pair {
+        md.push_str(&per_pair_markdown(&report));
+    }
     println!("{md}");
     if let Some(p) = &a.markdown {
         sdf_slam::io::write_atomic(p, md.as_bytes())?;

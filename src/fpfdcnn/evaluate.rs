@@ -23,8 +23,8 @@ use crate::features::match_refine::{MatchRefineConfig, refine_matches};
 use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
-    CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, match_error_vectors,
-    repeatability, within_common_offset,
+    CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, common_offset,
+    match_error_vectors, repeatability, within_common_offset,
 };
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
@@ -101,6 +101,22 @@ impl Default for MatchingEvalConfig {
     }
 }
 
+/// One method's matches on one frame pair.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct PairResult {
+    /// Frame indices of the pair.
+    pub a: usize,
+    pub b: usize,
+    /// Correct (within 5 px) and judged matches.
+    pub correct: usize,
+    pub matches: usize,
+    /// Matches within 5 px of the pair's common offset.
+    pub within_offset: usize,
+    /// The common offset, ground-truth projection minus matched point, pixels (`None`:
+    /// no judged match).
+    pub offset_px: Option<[f64; 2]>,
+}
+
 /// Results of one method on one condition (clear or blurred).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct ConditionResult {
@@ -126,6 +142,9 @@ pub struct ConditionResult {
     /// shared ground-truth error taken out (a diagnostic beside `accuracy`).
     #[serde(default)]
     pub offset_removed_accuracy: f64,
+    /// Each pair's figures, in the order of [`MatchingReport::pairs`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pairs: Vec<PairResult>,
     /// Keypoint repeatability within 3 px, both directions pooled
     /// ([`crate::metrics::matching::Repeatability`]): how many keypoints the other image
     /// detects again, whatever their descriptors.
@@ -184,7 +203,6 @@ pub struct MatchingReport {
 
 #[derive(Default)]
 struct Acc {
-    acc: Vec<MatchingAccuracy>,
     segs: Vec<PoseErrorSegment>,
     rot: Vec<f64>,
     trans: Vec<f64>,
@@ -192,7 +210,7 @@ struct Acc {
     keypoints: usize,
     images: usize,
     errors: Vec<f64>,
-    within_offset: usize,
+    pairs: Vec<PairResult>,
     repeat: Vec<Repeatability>,
     derotated: usize,
     refined: usize,
@@ -200,7 +218,10 @@ struct Acc {
 
 impl Acc {
     fn finish(self) -> ConditionResult {
-        let pooled = MatchingAccuracy::pool(&self.acc);
+        let pooled = MatchingAccuracy::new(
+            self.pairs.iter().map(|p| p.correct).sum(),
+            self.pairs.iter().map(|p| p.matches).sum(),
+        );
         let pose = PoseError::pool(&self.segs).ok();
         let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
         let repeat = Repeatability::pool(&self.repeat);
@@ -219,7 +240,9 @@ impl Acc {
             derotated_pairs: self.derotated,
             refined_matches: self.refined,
             keypoints: self.keypoints as f64 / self.images.max(1) as f64,
-            offset_removed_accuracy: self.within_offset as f64 / self.errors.len().max(1) as f64,
+            offset_removed_accuracy: self.pairs.iter().map(|p| p.within_offset).sum::<usize>()
+                as f64
+                / pooled.matches.max(1) as f64,
             within_px: [2.0, 5.0, 10.0, 20.0]
                 .iter()
                 .map(|&t| {
@@ -227,6 +250,7 @@ impl Acc {
                     (t, n as f64 / self.errors.len().max(1) as f64)
                 })
                 .collect(),
+            pairs: self.pairs,
         }
     }
 }
@@ -394,11 +418,18 @@ fn score(
     let errors: Vec<Option<f64>> = vectors.iter().map(|e| e.map(|v| v.norm())).collect();
     let judged: Vec<f64> = errors.iter().flatten().copied().collect();
     let judged_vectors: Vec<_> = vectors.into_iter().flatten().collect();
-    acc.within_offset += within_common_offset(&judged_vectors, CORRECT_MATCH_PX);
-    acc.acc.push(MatchingAccuracy::new(
+    let accuracy = MatchingAccuracy::new(
         judged.iter().filter(|e| **e <= CORRECT_MATCH_PX).count(),
         judged.len(),
-    ));
+    );
+    acc.pairs.push(PairResult {
+        a: a.index,
+        b: b.index,
+        correct: accuracy.correct,
+        matches: accuracy.matches,
+        within_offset: within_common_offset(&judged_vectors, CORRECT_MATCH_PX),
+        offset_px: common_offset(&judged_vectors).map(|o| [o.x, o.y]),
+    });
     acc.errors.extend(&judged);
     acc.keypoints += points_a.len() + points_b.len();
     acc.images += 2;
@@ -791,6 +822,60 @@ pub fn describe_detector(cfg: &super::inference::DetectorConfig) -> String {
             ", refined to corners within {} px",
             cfg.subpixel_radius
         ));
+    }
+    s
+}
+
+/// Each pair's figures as a markdown table per condition: accuracy, the pair's common
+/// offset and the share within 5 px of it, for each method (`eval matching --per-pair`).
+pub fn per_pair_markdown(r: &MatchingReport) -> String {
+    let mut methods = vec![("ORB + BF", &r.orb_bf)];
+    if let Some(f) = &r.fpfdcnn_range {
+        methods.push(("FPFDCNN + range", f));
+    }
+    let cell = |p: &PairResult| {
+        let share = |n: usize| 100.0 * n as f64 / p.matches.max(1) as f64;
+        let offset = p
+            .offset_px
+            .map_or("–".to_string(), |o| format!("{:+.1}, {:+.1}", o[0], o[1]));
+        format!(
+            "{:.1} % ({}/{}) | {offset} | {:.1} %",
+            share(p.correct),
+            p.correct,
+            p.matches,
+            share(p.within_offset)
+        )
+    };
+    let mut s = String::new();
+    let conditions: [(&str, fn(&MethodResult) -> Option<&ConditionResult>); 2] = [
+        ("Clear", |m| Some(&m.clean)),
+        ("Blurred", |m| m.blurred.as_ref()),
+    ];
+    for (scenario, pick) in conditions {
+        let rows: Vec<&ConditionResult> = methods.iter().filter_map(|(_, m)| pick(m)).collect();
+        if rows.len() < methods.len() {
+            continue;
+        }
+        s.push_str(&format!("\n{scenario} pairs\n\n| pair |"));
+        for (name, _) in &methods {
+            s.push_str(&format!(
+                " {name}: accuracy | offset (px) | within 5 px of it |"
+            ));
+        }
+        s.push_str(&format!(
+            "\n|---|{}\n",
+            "---|---|---|".repeat(methods.len())
+        ));
+        for (k, &(a, b)) in r.pairs.iter().enumerate() {
+            s.push_str(&format!("| {a}-{b} |"));
+            for c in &rows {
+                match c.pairs.get(k) {
+                    Some(p) => s.push_str(&format!(" {} |", cell(p))),
+                    None => s.push_str(" – | – | – |"),
+                }
+            }
+            s.push('\n');
+        }
     }
     s
 }

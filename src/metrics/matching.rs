@@ -99,23 +99,31 @@ pub fn match_error_vectors(
 /// matches agree with one another's motion instead. A diagnostic beside the paper's
 /// accuracy, not a replacement: a matcher whose errors all share a direction scores well.
 pub fn within_common_offset(errors: &[Vector2<f64>], tolerance_px: f64) -> usize {
+    let Some(offset) = common_offset(errors) else {
+        return 0;
+    };
+    errors
+        .iter()
+        .filter(|e| (**e - offset).norm() <= tolerance_px)
+        .count()
+}
+
+/// One pair's common offset: the component-wise median of its finite match errors (`None`
+/// when it has none).
+pub fn common_offset(errors: &[Vector2<f64>]) -> Option<Vector2<f64>> {
     let finite: Vec<&Vector2<f64>> = errors
         .iter()
         .filter(|e| e.iter().all(|c| c.is_finite()))
         .collect();
     if finite.is_empty() {
-        return 0;
+        return None;
     }
     let median = |axis: usize| {
         let mut c: Vec<f64> = finite.iter().map(|e| e[axis]).collect();
         c.sort_by(f64::total_cmp);
         c[c.len() / 2]
     };
-    let offset = Vector2::new(median(0), median(1));
-    finite
-        .iter()
-        .filter(|e| (**e - offset).norm() <= tolerance_px)
-        .count()
+    Some(Vector2::new(median(0), median(1)))
 }
 
 /// Matching accuracy of one frame pair with correctness radius `tolerance_px`

@@ -847,12 +847,17 @@ pub fn per_pair_markdown(r: &MatchingReport) -> String {
         )
     };
     let mut s = String::new();
-    let conditions: [(&str, fn(&MethodResult) -> Option<&ConditionResult>); 2] = [
-        ("Clear", |m| Some(&m.clean)),
-        ("Blurred", |m| m.blurred.as_ref()),
-    ];
-    for (scenario, pick) in conditions {
-        let rows: Vec<&ConditionResult> = methods.iter().filter_map(|(_, m)| pick(m)).collect();
+    for (scenario, blurred) in [("Clear", false), ("Blurred", true)] {
+        let rows: Vec<&ConditionResult> = methods
+            .iter()
+            .filter_map(|(_, m)| {
+                if blurred {
+                    m.blurred.as_ref()
+                } else {
+                    Some(&m.clean)
+                }
+            })
+            .collect();
         if rows.len() < methods.len() {
             continue;
         }

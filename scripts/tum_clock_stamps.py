@@ -2,7 +2,7 @@
 """A copy of a TUM RGB-D sequence whose colour stamps lie on the camera's frame clock.
 
 TUM RGB-D stamps each Kinect image when it reached the recording PC. On fr1_rpy the gaps
-between consecutive colour stamps run 29-39 ms around the camera's 33.3 ms period, and where
+between consecutive colour stamps run 27-40 ms around the camera's 33.3 ms period, and where
 the camera turns fast a stamp a few ms off moves the ground truth's projection by several
 pixels (README, *Colour stamps on the camera's clock*). This script fits the colour stamps
 to a regular clock, t_k = t0 + n_k * period, by least squares (n_k: each frame's number of

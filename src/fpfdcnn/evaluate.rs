@@ -24,7 +24,7 @@ use crate::features::orb::{OrbConfig, detect_and_compute};
 use crate::geometry::Pose;
 use crate::metrics::matching::{
     CORRECT_MATCH_PX, MatchingAccuracy, REPEATED_PX, Repeatability, common_offset,
-    match_error_vectors, repeatability, within_common_offset,
+    match_error_vectors, repeatability, within_offset,
 };
 use crate::metrics::{PoseError, PoseErrorSegment};
 use crate::pnp::{PnpConfig, solve_pnp_ransac};
@@ -422,13 +422,14 @@ fn score(
         judged.iter().filter(|e| **e <= CORRECT_MATCH_PX).count(),
         judged.len(),
     );
+    let offset = common_offset(&judged_vectors);
     acc.pairs.push(PairResult {
         a: a.index,
         b: b.index,
         correct: accuracy.correct,
         matches: accuracy.matches,
-        within_offset: within_common_offset(&judged_vectors, CORRECT_MATCH_PX),
-        offset_px: common_offset(&judged_vectors).map(|o| [o.x, o.y]),
+        within_offset: offset.map_or(0, |o| within_offset(&judged_vectors, o, CORRECT_MATCH_PX)),
+        offset_px: offset.map(|o| [o.x, o.y]),
     });
     acc.errors.extend(&judged);
     acc.keypoints += points_a.len() + points_b.len();

@@ -99,9 +99,11 @@ pub fn match_error_vectors(
 /// matches agree with one another's motion instead. A diagnostic beside the paper's
 /// accuracy, not a replacement: a matcher whose errors all share a direction scores well.
 pub fn within_common_offset(errors: &[Vector2<f64>], tolerance_px: f64) -> usize {
-    let Some(offset) = common_offset(errors) else {
-        return 0;
-    };
+    common_offset(errors).map_or(0, |offset| within_offset(errors, offset, tolerance_px))
+}
+
+/// How many of `errors` lie within `tolerance_px` of `offset` (infinite errors never do).
+pub fn within_offset(errors: &[Vector2<f64>], offset: Vector2<f64>, tolerance_px: f64) -> usize {
     errors
         .iter()
         .filter(|e| (**e - offset).norm() <= tolerance_px)

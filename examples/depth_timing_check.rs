@@ -1,6 +1,6 @@
 //! Which instant a TUM depth image was taken at: ICP between consecutive depth images
 //! compared with the ground truth's motion between their colour stamps and between their
-//! depth stamps, on the pairs whose two offsets differ (README, *Depth taken after the
+//! depth stamps, on the pairs whose two offsets differ (docs/slam-results.md, *Depth taken after the
 //! colour*). Usage: `cargo run --release --example depth_timing_check -- SEQUENCE [CAMERA]`
 //! (CAMERA as `slam --camera`: a preset name or a camera.toml; default `fr1`).
 use sdf_slam::camera::{Camera, RayTable};

@@ -9,7 +9,7 @@
 //! revisit: a dense tracker that closes no loops, like the KinectFusion that made 7-Scenes'
 //! ground truth, carries its drift into them). Each trajectory file given (TUM format,
 //! camera-to-world, stamps of the sequence's colour images) is scored on the same pairs
-//! against the same alignments (README, *Does the ground truth close its own loops*).
+//! against the same alignments (docs/slam-results.md, *Does the ground truth close its own loops*).
 //!
 //! cargo run --release --example gt_loop_check -- SEQUENCE CAMERA FIRST LAST [TRAJECTORY ...]
 

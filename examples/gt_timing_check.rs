@@ -4,7 +4,7 @@
 //! with the ground truth read `shift` milliseconds from each colour stamp and each keypoint's
 //! bearing turned back to its image's middle row at the ground truth's angular velocity for
 //! a rolling-shutter readout of `readout` frame times (0: a global shutter). The matches are
-//! the same in every cell; only the ground truth's reading of them changes (README,
+//! the same in every cell; only the ground truth's reading of them changes (docs/slam-results.md,
 //! *Depth taken after the colour*).
 //!
 //! cargo run --release --example gt_timing_check -- SEQUENCE [GAP] [CAMERA]

@@ -6,7 +6,7 @@
 //! keyframe alignments' settings and gates, on the sensor's depth at every
 //! `map.pixel_stride`-th pixel, without the map's depth-edge filter; the ground truth where
 //! the alignment fails its gates). ORB takes no part in either pose, so the pose its matches fit
-//! better is the closer to the colour images' motion (README, *Does the ground truth close
+//! better is the closer to the colour images' motion (docs/slam-results.md, *Does the ground truth close
 //! its own loops*).
 //!
 //! cargo run --release --example refined_gt_check -- SEQUENCE CAMERA FIRST LAST [GAP]

@@ -22,7 +22,7 @@
 # Sim(3) scale and the share of map points within the position tolerance of the sensor's
 # surface (Table 11). Two runs at a time: trajectories do not depend on timing; speeds do, so
 # do not read them here, nor the last digit of a monocular map's share (its multi-view depth
-# reads the live poses of a threaded run: README, "Local bundle adjustment"). Needs `cargo build --release` first and the data of ../shared/data
+# reads the live poses of a threaded run: docs/slam-results.md, "Local bundle adjustment"). Needs `cargo build --release` first and the data of ../shared/data
 # (README, "Data formats"; scripts/get_data.sh says where to get it): 7scenes_redkitchen_0_799
 # and tum_fr1_rpy_head80, or set SEVEN_SCENES / FR1_RPY to other copies in the same layout.
 # FPFDCNN=CKPT runs other FPFDCNN weights (a checkpoint folder, as `slam --fpfdcnn`).

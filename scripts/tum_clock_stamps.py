@@ -4,7 +4,7 @@
 TUM RGB-D stamps each Kinect image when it reached the recording PC. On fr1_rpy the gaps
 between consecutive colour stamps run 27-40 ms around the camera's 33.3 ms period, and where
 the camera turns fast a stamp a few ms off moves the ground truth's projection by several
-pixels (README, *Colour stamps on the camera's clock*). This script fits the colour stamps
+pixels (docs/fpfdcnn-results.md, *Colour stamps on the camera's clock*). This script fits the colour stamps
 to a regular clock, t_k = t0 + n_k * period, by least squares (n_k: each frame's number of
 periods after the first, rounded; dropped frames keep their place), and writes a copy of the
 sequence with those stamps in rgb.txt and associations.txt. Depth stamps, depth.txt,

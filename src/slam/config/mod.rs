@@ -592,7 +592,7 @@ impl Default for LabelVoteConfig {
 pub enum EdgeInformation {
     Fixed,
     Hessian,
-    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: README,
+    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: docs/slam-results.md,
     /// "Keyframe edges shaped by the alignment's curvature").
     Loops,
 }

@@ -374,6 +374,25 @@ fn synthetic_monocular_with_depth_from_the_semantic_source() {
     assert!(out.semantic_map.len() > 1000);
 }
 
+#[test]
+fn monocular_rotation_from_bearings_is_accurate_and_thread_independent() {
+    let seq = box_room();
+    let run = |threads: bool, epipolar: bool| {
+        let mut cfg = config(threads);
+        cfg.tracking.epipolar_rotation = epipolar;
+        slam(&seq, box_camera(), cfg, DepthMode::Predicted, true)
+            .run(quiet())
+            .unwrap()
+    };
+    let (a, b) = (run(false, true), run(true, true));
+    assert_eq!(a.trajectory().poses, b.trajectory().poses);
+    // Exact depth here, so the bearings' rotation should not spoil an accurate trajectory.
+    let e = ate(&a, &seq, Alignment::Sim3);
+    assert!(e < 0.025, "ATE {e}");
+    // The option acted: the trajectory is not PnP's.
+    assert_ne!(a.trajectory().poses, run(false, false).trajectory().poses);
+}
+
 /// Ground-truth labels and depth, the depth wrong by a slant across the image (8 % too
 /// near at the left edge, 8 % too far at the right), as a network's error often is.
 struct SlantedDepth(GroundTruthSource);

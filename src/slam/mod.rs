@@ -24,6 +24,7 @@ pub mod correction;
 pub mod depth_alignment;
 pub mod depth_edges;
 pub mod depth_sync;
+pub mod epipolar_rotation;
 pub mod evaluation;
 pub mod frame_blending;
 pub mod frame_graph;

@@ -400,6 +400,12 @@ impl Tracker {
         self.lost_streak = 0;
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
+        if self.monocular
+            && self.cfg.tracking.epipolar_rotation
+            && let Some(p) = self.epipolar_pose(&result, &corr, reference_now, &pose)
+        {
+            pose = p;
+        }
         // `tracking.sync_depth`: from here on the frame's depth is the one seen at its colour
         // image's instant, by this frame's motion since the last.
         // Only between two tracked frames: after a loss or a relocalisation the step holds a
@@ -926,6 +932,78 @@ impl Tracker {
             }
         }
         best
+    }
+
+    /// `tracking.epipolar_rotation` (monocular): the frame's rotation relative to keyframe
+    /// `reference` refined on the bearings of the PnP inliers matched to it, then its
+    /// translation refitted to every inlier's point with that rotation held. `None` (keep
+    /// PnP's pose) when the baseline is too short for a direction, too few pairs remain, or
+    /// the refined rotation lies more than 5 degrees from PnP's.
+    fn epipolar_pose(
+        &self,
+        result: &PnpResult,
+        corr: &Correspondences,
+        reference: usize,
+        pose: &Pose,
+    ) -> Option<Pose> {
+        use super::epipolar_rotation::{
+            EpipolarParams, bearing, camera_to_world, refine_relative_rotation, refit_translation,
+        };
+        let kf_to_world = self.keyframes[reference].pose;
+        let world_to_kf = kf_to_world.inverse();
+        let world_to_frame = pose.inverse();
+        let relative = world_to_frame * kf_to_world;
+        let inliers: Vec<usize> = (0..corr.world.len())
+            .filter(|&k| result.inliers[k])
+            .collect();
+        let pairs: Vec<_> = inliers
+            .iter()
+            .filter(|&&k| corr.from_reference[k])
+            .map(|&k| {
+                let in_kf = world_to_kf * corr.world[k];
+                (
+                    in_kf.coords.normalize(),
+                    bearing(&self.camera, &corr.pixels[k]),
+                )
+            })
+            .collect();
+        let mut depths: Vec<f64> = inliers
+            .iter()
+            .filter(|&&k| corr.from_reference[k])
+            .map(|&k| (world_to_kf * corr.world[k]).z)
+            .collect();
+        depths.sort_by(f64::total_cmp);
+        let median = *depths.get(depths.len() / 2)?;
+        let baseline = relative.translation.vector.norm();
+        if !(baseline >= self.cfg.tracking.epipolar_min_parallax * median) {
+            return None;
+        }
+        let start = relative.rotation.to_rotation_matrix();
+        let (rotation, _) = refine_relative_rotation(
+            &pairs,
+            &start,
+            &relative.translation.vector,
+            &EpipolarParams::default(),
+        )?;
+        if (start.inverse() * rotation).angle().to_degrees() > 5.0 {
+            return None;
+        }
+        let rotation_w = rotation * world_to_kf.rotation.to_rotation_matrix();
+        let world: Vec<Point3<f64>> = inliers.iter().map(|&k| corr.world[k]).collect();
+        let observed: Vec<_> = inliers
+            .iter()
+            .map(|&k| self.camera.normalized(&corr.pixels[k]))
+            .collect();
+        let huber = 2.0 / self.camera.fx.max(1.0);
+        let t = refit_translation(
+            &world,
+            &observed,
+            &rotation_w,
+            &world_to_frame.translation.vector,
+            huber,
+            10,
+        )?;
+        Some(camera_to_world(&rotation_w, &t))
     }
 
     fn pnp(&self, corr: &Correspondences, predicted: Option<&Pose>) -> Option<PnpResult> {

@@ -257,6 +257,13 @@ pub struct TrackingConfig {
     /// of 0: off).
     pub keypoint_edge_ratio: f32,
     pub keypoint_edge_reach: u32,
+    /// Monocular mode: each tracked frame's rotation relative to its reference keyframe
+    /// refined on the matches' bearings alone (epipolar geometry, no predicted depth), then
+    /// its translation refitted to the keyframe's points with that rotation held
+    /// ([`crate::slam::epipolar_rotation`]); only where the baseline is at least
+    /// `epipolar_min_parallax` of the points' median depth.
+    pub epipolar_rotation: bool,
+    pub epipolar_min_parallax: f64,
 }
 
 impl Default for TrackingConfig {
@@ -273,6 +280,8 @@ impl Default for TrackingConfig {
             colour_instant: true,
             keypoint_edge_ratio: 0.0,
             keypoint_edge_reach: 3,
+            epipolar_rotation: false,
+            epipolar_min_parallax: 0.01,
         }
     }
 }
@@ -851,6 +860,9 @@ mod tests {
             ("tracking", "keypoint_edge_ratio", "nan"),
             ("tracking", "keypoint_edge_ratio", "-0.1"),
             ("tracking", "keypoint_edge_reach", "65"),
+            ("tracking", "epipolar_min_parallax", "nan"),
+            ("tracking", "epipolar_min_parallax", "-0.01"),
+            ("tracking", "epipolar_min_parallax", "2"),
             ("system", "queue", "0"),
             ("system", "feature_workers", "17"),
             ("map", "min_views", "0"),

@@ -162,6 +162,12 @@ impl SlamConfig {
             64,
             "tracking.keypoint_edge_reach",
         )?;
+        if !(0.0..=1.0).contains(&t.epipolar_min_parallax) {
+            return Err(format!(
+                "tracking.epipolar_min_parallax must be in [0, 1] (baseline / median depth), got {}",
+                t.epipolar_min_parallax
+            ));
+        }
         Ok(())
     }
 

@@ -94,7 +94,7 @@ pub fn refine_relative_rotation(
     params: &EpipolarParams,
 ) -> Option<(Rotation3<f64>, Unit<Vector3<f64>>)> {
     let len = translation.norm();
-    if pairs.len() < params.min_pairs.max(5) || !(len > 1e-9) || !len.is_finite() {
+    if pairs.len() < params.min_pairs.max(5) || !len.is_finite() || len <= 1e-9 {
         return None;
     }
     let mut r = *rotation;

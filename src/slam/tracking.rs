@@ -975,7 +975,7 @@ impl Tracker {
         depths.sort_by(f64::total_cmp);
         let median = *depths.get(depths.len() / 2)?;
         let baseline = relative.translation.vector.norm();
-        if !(baseline >= self.cfg.tracking.epipolar_min_parallax * median) {
+        if baseline.is_nan() || baseline < self.cfg.tracking.epipolar_min_parallax * median {
             return None;
         }
         let start = relative.rotation.to_rotation_matrix();

@@ -386,7 +386,8 @@ fn monocular_rotation_from_bearings_is_accurate_and_thread_independent() {
     };
     let (a, b) = (run(false, true), run(true, true));
     assert_eq!(a.trajectory().poses, b.trajectory().poses);
-    // Exact depth here, so the bearings' rotation should not spoil an accurate trajectory.
+    // With exact depth the bearings' rotations are noisier than PnP's here; the back end
+    // still brings the final trajectory to the bound PnP's run meets.
     let e = ate(&a, &seq, Alignment::Sim3);
     assert!(e < 0.025, "ATE {e}");
     // The option acted: the trajectory is not PnP's.

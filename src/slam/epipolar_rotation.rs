@@ -100,12 +100,12 @@ pub fn refine_relative_rotation(
     let mut r = *rotation;
     let mut t = translation / len;
     let h = 1e-6;
-    for _ in 0..params.iterations {
+    for _ in 0..params.iterations.max(1) {
         let mut jtj = Matrix5::<f64>::zeros();
         let mut jtr = Vector5::<f64>::zeros();
         let mut used = 0;
         for (b1, b2) in pairs {
-            let Some(e) = plane_error(&r, &t, b1, b2) else {
+            let Some(e) = plane_error(&r, &t, b1, b2).filter(|e| e.is_finite()) else {
                 continue;
             };
             let mut j = Vector5::zeros();
@@ -114,7 +114,7 @@ pub fn refine_relative_rotation(
                 let mut d = Vector5::zeros();
                 d[k] = h;
                 let (rk, tk) = stepped(&r, &t, &d);
-                match plane_error(&rk, &tk, b1, b2) {
+                match plane_error(&rk, &tk, b1, b2).filter(|e| e.is_finite()) {
                     Some(ek) => j[k] = (ek - e) / h,
                     None => ok = false,
                 }
@@ -169,7 +169,7 @@ pub fn refit_translation(
         let mut used = 0;
         for (x, o) in world.iter().zip(observed) {
             let p = rotation * x.coords + t;
-            if p.z <= 1e-6 {
+            if p.z.is_nan() || p.z <= 1e-6 || !o.iter().all(|v| v.is_finite()) {
                 continue;
             }
             let iz = 1.0 / p.z;
@@ -179,6 +179,9 @@ pub fn refit_translation(
                 Vector3::new(0.0, iz, -p.y * iz * iz),
             ];
             let e = (r[0] * r[0] + r[1] * r[1]).sqrt();
+            if !e.is_finite() {
+                continue;
+            }
             let w = if e <= huber_norm { 1.0 } else { huber_norm / e };
             for (row, ri) in rows.iter().zip(r) {
                 jtj += w * row * row.transpose();
@@ -275,12 +278,19 @@ mod tests {
         let (pts, r, t) = scene();
         let pairs: Vec<_> = pts
             .iter()
-            .take(10)
             .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
             .collect();
         let p = EpipolarParams::default();
-        assert!(refine_relative_rotation(&pairs, &r, &t, &p).is_none());
+        assert!(refine_relative_rotation(&pairs[..10], &r, &t, &p).is_none());
         assert!(refine_relative_rotation(&pairs, &r, &Vector3::zeros(), &p).is_none());
+        assert!(
+            refine_relative_rotation(&pairs, &r, &Vector3::from_element(f64::NAN), &p).is_none()
+        );
+        // A few unreadable bearings are skipped, not fatal.
+        let mut some_nan = pairs.clone();
+        some_nan[3].1 = Vector3::from_element(f64::NAN);
+        let (rr, _) = refine_relative_rotation(&some_nan, &r, &t, &p).unwrap();
+        assert!((rr.inverse() * r).angle() < 1e-6);
     }
 
     #[test]
@@ -300,23 +310,26 @@ mod tests {
         assert!((c.coords - (r * pts[0].coords + t)).norm() < 1e-9);
     }
 
-    /// Depths pressed towards their middle (as SDFCNN's are on unseen frames) bias a pose fitted
-    /// to the points, not the bearings: the epipolar rotation stays the true one.
+    /// Depths pressed towards their middle (as SDFCNN's are on unseen frames) do not enter the
+    /// bearings: from a start two degrees off, the rotation comes back exactly, and the
+    /// translation refitted against the compressed points with it keeps the true direction.
     #[test]
     fn compressed_depths_do_not_bend_the_epipolar_rotation() {
         let (pts, r, t) = scene();
-        let pairs: Vec<_> = pts
-            .iter()
-            .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
-            .collect();
-        let (rr, _) = refine_relative_rotation(&pairs, &r, &t, &EpipolarParams::default()).unwrap();
-        assert!((rr.inverse() * r).angle() < 1e-6);
-        // The same points with depths compressed about 2 m by a slope of 1 / 1.2: the
-        // translation refitted with the true rotation is about as long as the true one.
         let squashed: Vec<_> = pts
             .iter()
             .map(|p| p * (2.0 * (p.z / 2.0).powf(1.0 / 1.2) / p.z))
             .collect();
+        // Bearings are the same whatever the depths along their rays.
+        let pairs: Vec<_> = squashed
+            .iter()
+            .zip(&pts)
+            .map(|(q, p)| (q.coords.normalize(), (r * p.coords + t).normalize()))
+            .collect();
+        let r0 = Rotation3::from_euler_angles(0.02, -0.025, 0.0) * r;
+        let (rr, _) =
+            refine_relative_rotation(&pairs, &r0, &(t * 2.0), &EpipolarParams::default()).unwrap();
+        assert!((rr.inverse() * r).angle() < 1e-6);
         let observed: Vec<_> = pts
             .iter()
             .map(|p| {
@@ -326,7 +339,7 @@ mod tests {
             .collect();
         let got =
             refit_translation(&squashed, &observed, &rr, &Vector3::zeros(), 0.01, 30).unwrap();
-        let ratio = got.norm() / t.norm();
-        assert!((0.7..1.4).contains(&ratio), "{ratio}");
+        let cos = got.normalize().dot(&t.normalize());
+        assert!(cos > 0.99, "{cos}");
     }
 }

@@ -937,8 +937,9 @@ impl Tracker {
     /// `tracking.epipolar_rotation` (monocular): the frame's rotation relative to keyframe
     /// `reference` refined on the bearings of the PnP inliers matched to it, then its
     /// translation refitted to every inlier's point with that rotation held. `None` (keep
-    /// PnP's pose) when the baseline is too short for a direction, too few pairs remain, or
-    /// the refined rotation lies more than 5 degrees from PnP's.
+    /// PnP's pose) when no inlier is matched to the keyframe, the baseline is too short for a
+    /// direction, too few pairs remain, the refined rotation lies more than 5 degrees from
+    /// PnP's, or the translation does not refit.
     fn epipolar_pose(
         &self,
         result: &PnpResult,
@@ -983,7 +984,11 @@ impl Tracker {
             &pairs,
             &start,
             &relative.translation.vector,
-            &EpipolarParams::default(),
+            &EpipolarParams {
+                // About 1.5 px at the camera's focal length.
+                scale: 1.5 / self.camera.fx.max(1.0),
+                ..EpipolarParams::default()
+            },
         )?;
         if (start.inverse() * rotation).angle().to_degrees() > 5.0 {
             return None;

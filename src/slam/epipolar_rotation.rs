@@ -236,13 +236,21 @@ mod tests {
         (pts, r, t)
     }
 
+    /// Each point's bearing from camera 1 and from camera 2 (`x₂ = R x₁ + t`).
+    fn bearing_pairs(
+        pts: &[Point3<f64>],
+        r: &Rotation3<f64>,
+        t: &Vector3<f64>,
+    ) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        pts.iter()
+            .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
+            .collect()
+    }
+
     #[test]
     fn the_rotation_comes_back_from_bearings_alone() {
         let (pts, r, t) = scene();
-        let pairs: Vec<_> = pts
-            .iter()
-            .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
-            .collect();
+        let pairs = bearing_pairs(&pts, &r, &t);
         // Start 2 degrees and a skewed direction away.
         let r0 = Rotation3::from_euler_angles(0.0, 0.035, 0.0) * r;
         let t0 = t + Vector3::new(0.0, 0.02, -0.01);
@@ -259,10 +267,7 @@ mod tests {
     #[test]
     fn outliers_are_held_by_the_robust_weight() {
         let (pts, r, t) = scene();
-        let mut pairs: Vec<_> = pts
-            .iter()
-            .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
-            .collect();
+        let mut pairs = bearing_pairs(&pts, &r, &t);
         // A tenth of the matches wrong by several degrees.
         for (i, pair) in pairs.iter_mut().enumerate().filter(|(i, _)| i % 10 == 0) {
             let wrong = Rotation3::from_euler_angles(0.05 + 0.001 * i as f64, -0.04, 0.0);
@@ -276,10 +281,7 @@ mod tests {
     #[test]
     fn too_few_pairs_or_no_baseline_give_none() {
         let (pts, r, t) = scene();
-        let pairs: Vec<_> = pts
-            .iter()
-            .map(|p| (p.coords.normalize(), (r * p.coords + t).normalize()))
-            .collect();
+        let pairs = bearing_pairs(&pts, &r, &t);
         let p = EpipolarParams::default();
         assert!(refine_relative_rotation(&pairs[..10], &r, &t, &p).is_none());
         assert!(refine_relative_rotation(&pairs, &r, &Vector3::zeros(), &p).is_none());
@@ -293,16 +295,24 @@ mod tests {
         assert!((rr.inverse() * r).angle() < 1e-6);
     }
 
-    #[test]
-    fn the_translation_is_refitted_with_the_rotation_held() {
-        let (pts, r, t) = scene();
-        let observed: Vec<_> = pts
-            .iter()
+    /// Each point's undistorted normalised coordinates in camera 2.
+    fn normalised_views(
+        pts: &[Point3<f64>],
+        r: &Rotation3<f64>,
+        t: &Vector3<f64>,
+    ) -> Vec<nalgebra::Vector2<f64>> {
+        pts.iter()
             .map(|p| {
                 let q = r * p.coords + t;
                 nalgebra::Vector2::new(q.x / q.z, q.y / q.z)
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn the_translation_is_refitted_with_the_rotation_held() {
+        let (pts, r, t) = scene();
+        let observed = normalised_views(&pts, &r, &t);
         let got = refit_translation(&pts, &observed, &r, &Vector3::zeros(), 0.01, 20).unwrap();
         assert!((got - t).norm() < 1e-9, "{got:?}");
         let pose = camera_to_world(&r, &got);
@@ -330,13 +340,7 @@ mod tests {
         let (rr, _) =
             refine_relative_rotation(&pairs, &r0, &(t * 2.0), &EpipolarParams::default()).unwrap();
         assert!((rr.inverse() * r).angle() < 1e-6);
-        let observed: Vec<_> = pts
-            .iter()
-            .map(|p| {
-                let q = r * p.coords + t;
-                nalgebra::Vector2::new(q.x / q.z, q.y / q.z)
-            })
-            .collect();
+        let observed = normalised_views(&pts, &r, &t);
         let got =
             refit_translation(&squashed, &observed, &rr, &Vector3::zeros(), 0.01, 30).unwrap();
         let cos = got.normalize().dot(&t.normalize());

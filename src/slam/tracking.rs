@@ -957,22 +957,20 @@ impl Tracker {
         let inliers: Vec<usize> = (0..corr.world.len())
             .filter(|&k| result.inliers[k])
             .collect();
-        let pairs: Vec<_> = inliers
+        // The reference keyframe's inliers: bearing in the keyframe (its point's direction, not
+        // its predicted depth) and in the frame; their depths set the least baseline.
+        let (pairs, mut depths): (Vec<_>, Vec<f64>) = inliers
             .iter()
             .filter(|&&k| corr.from_reference[k])
             .map(|&k| {
                 let in_kf = world_to_kf * corr.world[k];
-                (
+                let pair = (
                     in_kf.coords.normalize(),
                     bearing(&self.camera, &corr.pixels[k]),
-                )
+                );
+                (pair, in_kf.z)
             })
-            .collect();
-        let mut depths: Vec<f64> = inliers
-            .iter()
-            .filter(|&&k| corr.from_reference[k])
-            .map(|&k| (world_to_kf * corr.world[k]).z)
-            .collect();
+            .unzip();
         depths.sort_by(f64::total_cmp);
         let median = *depths.get(depths.len() / 2)?;
         let baseline = relative.translation.vector.norm();

@@ -93,6 +93,19 @@ pub fn rotation_angle(r: &UnitQuaternion<f64>) -> f64 {
     r.angle()
 }
 
+/// Two unit vectors spanning the plane orthogonal to unit vector `n`, so that `(e1, e2, n)`
+/// is right-handed up to the order (`e1 = n × helper`, `e2 = n × e1`).
+pub fn orthonormal_basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = n.cross(&helper).normalize();
+    let e2 = n.cross(&e1);
+    (e1, e2)
+}
+
 /// A similarity transform `x -> s R x + t` (Umeyama alignment result).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sim3 {

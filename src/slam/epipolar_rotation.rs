@@ -11,7 +11,7 @@
 //! then sets only the translation's length.
 
 use crate::camera::Camera;
-use crate::geometry::Pose;
+use crate::geometry::{Pose, orthonormal_basis};
 use nalgebra::{
     Matrix3, Matrix5, Point2, Point3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3,
     Vector5,
@@ -57,18 +57,6 @@ fn plane_error(
     (norm > 1e-9).then(|| b2.dot(&n) / norm)
 }
 
-/// Two unit vectors spanning the plane orthogonal to unit `t`.
-fn tangent_basis(t: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let helper = if t.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let u = t.cross(&helper).normalize();
-    let v = t.cross(&u);
-    (u, v)
-}
-
 /// The rotation and translation direction after a step `d` (rotation vector, then two
 /// tangent components of the direction).
 fn stepped(
@@ -76,7 +64,7 @@ fn stepped(
     t: &Vector3<f64>,
     d: &Vector5<f64>,
 ) -> (Rotation3<f64>, Vector3<f64>) {
-    let (u, v) = tangent_basis(t);
+    let (u, v) = orthonormal_basis(t);
     let r = Rotation3::new(Vector3::new(d[0], d[1], d[2])) * rotation;
     let t = (t + u * d[3] + v * d[4]).normalize();
     (r, t)

@@ -34,13 +34,7 @@ pub fn level_up_direction(up: Vector3<f64>, points: &[MapPoint]) -> Vector3<f64>
     if sample.len() < 100 {
         return up;
     }
-    let helper = if up.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let e1 = up.cross(&helper).normalize();
-    let e2 = up.cross(&e1);
+    let (e1, e2) = crate::geometry::orthonormal_basis(&up);
     let entropy = |u: &Vector3<f64>| -> f64 {
         let mut bins: HashMap<i64, usize> = HashMap::new();
         for p in &sample {
@@ -87,13 +81,7 @@ pub fn render_topdown(
     const CEILING: u8 = 21;
     let up = level_up_direction(up_direction(keyframe_poses), points);
     // Horizontal axes: principal directions of the points in the plane.
-    let helper = if up.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let e1 = up.cross(&helper).normalize();
-    let e2 = up.cross(&e1);
+    let (e1, e2) = crate::geometry::orthonormal_basis(&up);
     let flat: Vec<(f64, f64, f64, usize)> = points
         .iter()
         .enumerate()

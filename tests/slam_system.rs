@@ -12,6 +12,7 @@ use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{Alignment, DeltaUnit, ape, rpe};
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::ply::read_ply;
+use sdf_slam::slam::repeated_images::RepeatCounts;
 use sdf_slam::slam::report::MapAccuracy;
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
@@ -761,6 +762,58 @@ fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
     );
     // Still accurate where it tracked.
     assert!(ate(&out, &dir, Alignment::Se3) < 0.05);
+}
+
+#[test]
+fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
+    let src = box_room();
+    let dir = tmp_dir("box_repeats");
+    for entry in walk(&src) {
+        let rel = entry.strip_prefix(&src).unwrap();
+        let to = dir.join(rel);
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(&entry, &to).unwrap();
+    }
+    let seq = TumSequence::open(&dir).unwrap();
+    let f = &seq.frames;
+    // As a recorder that dropped frames: frame 6 repeats frame 5's colour, frame 10 frame 9's
+    // depth, frame 13 both of frame 12's images.
+    std::fs::copy(&f[5].rgb_path, &f[6].rgb_path).unwrap();
+    let depth = |i: usize| f[i].depth_path.clone().unwrap();
+    std::fs::copy(depth(9), depth(10)).unwrap();
+    std::fs::copy(&f[12].rgb_path, &f[13].rgb_path).unwrap();
+    std::fs::copy(depth(12), depth(13)).unwrap();
+    let keyframes = |skip: bool| {
+        let mut cfg = config(false);
+        cfg.keyframes.max_frames = 1;
+        cfg.keyframes.skip_mismatched = skip;
+        let out = slam(&dir, box_camera(), cfg, DepthMode::Sensor, false)
+            .run(quiet())
+            .unwrap();
+        assert_eq!(
+            out.repeated_frames,
+            RepeatCounts {
+                both: 1,
+                colour_only: 1,
+                depth_only: 1
+            }
+        );
+        out.frames
+            .iter()
+            .filter(|r| r.keyframe.is_some())
+            .map(|r| r.index)
+            .collect::<Vec<_>>()
+    };
+    let skipped = keyframes(true);
+    assert!(
+        !skipped.contains(&6) && !skipped.contains(&10),
+        "{skipped:?}"
+    );
+    for i in [5, 7, 9, 11, 13] {
+        assert!(skipped.contains(&i), "frame {i}: {skipped:?}");
+    }
+    let every = keyframes(false);
+    assert!(every.contains(&6) && every.contains(&10), "{every:?}");
 }
 
 fn sdf_slam_hash(x: u32, y: u32) -> f64 {

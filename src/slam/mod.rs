@@ -38,6 +38,7 @@ pub mod output;
 pub mod ply;
 pub mod pose_graph;
 pub mod prefetch;
+pub mod repeated_images;
 pub mod report;
 pub mod semantic_map;
 pub mod semantic_source;

@@ -5,6 +5,7 @@
 //! [`super::evaluation`], written by [`super::output`].
 
 use super::evaluation::TrajectoryEvaluation;
+use super::repeated_images::RepeatCounts;
 use super::semantic_map::{MapPoint, label_histogram};
 use super::system::{DepthMode, SlamOutput};
 use crate::classes;
@@ -123,6 +124,9 @@ pub struct Report {
     pub frames_requested: usize,
     pub frames_processed: usize,
     pub frames_skipped: Vec<(usize, String)>,
+    /// Frames whose colour and/or depth image repeats the previous frame's.
+    #[serde(default)]
+    pub repeated_frames: RepeatCounts,
     pub interrupted: bool,
     pub keyframes: usize,
     pub odometry_constraints: usize,
@@ -206,6 +210,7 @@ impl Report {
             frames_requested: out.total_frames,
             frames_processed: out.frames.len(),
             frames_skipped: out.skipped.clone(),
+            repeated_frames: out.repeated_frames,
             interrupted: out.interrupted,
             keyframes: out.map.keyframes.len(),
             odometry_constraints: out.map.constraints.len() - out.map.loop_constraints(),
@@ -297,6 +302,14 @@ impl Report {
             },
             self.frames_skipped.len()
         );
+        let r = &self.repeated_frames;
+        if r.total() > 0 {
+            let _ = writeln!(
+                s,
+                "| repeated images | {} frames repeat both of the previous frame's images, {} only its colour, {} only its depth |",
+                r.both, r.colour_only, r.depth_only
+            );
+        }
         let _ = writeln!(
             s,
             "| keyframes | {} ({} odometry + {} loop constraints, {} unified points) |",

@@ -18,6 +18,7 @@ use super::local_bundle_adjustment::LocalBaStats;
 use super::local_mapper::{LocalMapper, MapperInput};
 use super::map::{KeyframeFeatures, Map, SharedMap, read, write};
 use super::multiview_depth::SweepSummary;
+use super::repeated_images::{ImageKeys, RepeatCounts};
 use super::semantic_map::SemanticMap;
 use super::semantic_source::SemanticSource;
 use super::tracking::{FrameRecord, FrameStatus, TrackInput, Tracker, TrackingCounters};
@@ -195,6 +196,8 @@ pub struct SlamOutput {
     pub correction: CorrectionStats,
     /// Frames that could not be read, with the reason.
     pub skipped: Vec<(usize, String)>,
+    /// Frames by which of their images repeat the previous frame's.
+    pub repeated_frames: RepeatCounts,
     /// Keyframes whose semantic source failed (void labels used).
     pub semantic_failures: Vec<(usize, String)>,
     pub timings: Timings,
@@ -251,6 +254,7 @@ struct Loaded {
     depth_offset: f64,
     stamp: f64,
     gt: Option<Pose>,
+    keys: ImageKeys,
 }
 
 fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
@@ -258,6 +262,7 @@ fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
         let rgb = seq.load_rgb(i)?;
         let stamp = seq.frames[i].rgb_stamp;
         Ok(Loaded {
+            keys: ImageKeys::new(&rgb, None),
             rgb,
             depth: None,
             depth_offset: 0.0,
@@ -271,6 +276,7 @@ fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
             None => 0.0,
         };
         Ok(Loaded {
+            keys: ImageKeys::new(&f.rgb, f.depth.as_ref()),
             rgb: f.rgb,
             depth: f.depth,
             depth_offset,
@@ -289,6 +295,8 @@ struct TrackingRun {
     features: StageTime,
     tracking: StageTime,
     interrupted: bool,
+    /// Frames by which of their images repeat the previous frame's.
+    repeats: RepeatCounts,
 }
 
 /// A frame loaded and its keypoints detected (or why not), with the time each took.
@@ -349,7 +357,10 @@ fn tracking_loop(
         features: StageTime::default(),
         tracking: StageTime::default(),
         interrupted: false,
+        repeats: RepeatCounts::default(),
     };
+    // The last loaded frame's index and image hashes.
+    let mut previous: Option<(usize, ImageKeys)> = None;
     let mut track = |i: usize, p: Prepared| -> bool {
         if stop.load(Ordering::SeqCst) {
             run.interrupted = true;
@@ -371,6 +382,10 @@ fn tracking_loop(
             Default::default()
         });
         run.features.add_duration(p.detect);
+        let before = previous.filter(|(j, _)| j + 1 == i).map(|(_, k)| k);
+        let repeats = frame.keys.repeats(before.as_ref());
+        previous = Some((i, frame.keys));
+        run.repeats.add(repeats);
         let tracker = &mut run.tracker;
         let t = Instant::now();
         let out = tracker.track(TrackInput {
@@ -380,6 +395,7 @@ fn tracking_loop(
             depth: frame.depth.as_ref(),
             depth_offset: frame.depth_offset,
             gt_pose: frame.gt,
+            repeats,
         });
         run.tracking.add(t);
         for e in &out.events {
@@ -636,6 +652,7 @@ impl Slam {
             colour_instant,
             correction: correction.corrector.stats,
             skipped: run.skipped,
+            repeated_frames: run.repeats,
             semantic_failures: failures,
             timings,
             wall_seconds: started.elapsed().as_secs_f64(),

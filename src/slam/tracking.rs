@@ -20,6 +20,7 @@ use super::depth_alignment::{DepthModel, align};
 use super::depth_sync;
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, KeypointDepth, Map, ViewBounds, points_from_depth};
+use super::repeated_images::Repeats;
 use super::tsdf::{Tsdf, TsdfParams};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
@@ -118,6 +119,8 @@ pub struct TrackInput<'a> {
     /// The depth image's stamp minus the colour image's, seconds (0 when equal or unknown).
     pub depth_offset: f64,
     pub gt_pose: Option<Pose>,
+    /// Which of the frame's images repeat the previous frame's.
+    pub repeats: Repeats,
 }
 
 /// Result of [`Tracker::track`].
@@ -478,7 +481,8 @@ impl Tracker {
             || since.rotation.angle().to_degrees() > rules.max_rotation_deg
             || (rules.max_frames > 0 && frames_since >= rules.max_frames);
         let can = self.monocular || input.depth.is_some();
-        if wants_keyframe && can {
+        let mismatched = rules.skip_mismatched && input.repeats.mismatched();
+        if wants_keyframe && can && !mismatched {
             let mut out = self.start(input, Some(pose), status, events);
             out.record.inliers = inliers;
             out.record.correspondences = corr.world.len();

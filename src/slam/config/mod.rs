@@ -449,6 +449,10 @@ pub struct KeyframeConfig {
     pub max_rotation_deg: f64,
     /// This many frames since the reference keyframe (0: no limit).
     pub max_frames: usize,
+    /// No keyframe on a frame where exactly one of the colour and depth images repeats the
+    /// previous frame's (the two then show different instants); the next frame decides
+    /// ([`crate::slam::repeated_images`]).
+    pub skip_mismatched: bool,
 }
 
 impl Default for KeyframeConfig {
@@ -458,6 +462,7 @@ impl Default for KeyframeConfig {
             max_translation: 0.10,
             max_rotation_deg: 10.0,
             max_frames: 20,
+            skip_mismatched: false,
         }
     }
 }

@@ -9,7 +9,11 @@
 //! better is the closer to the colour images' motion (docs/slam-results.md, *Does the ground truth close
 //! its own loops*).
 //!
-//! cargo run --release --example refined_gt_check -- SEQUENCE CAMERA FIRST LAST [GAP]
+//! With `--each`, every pair's two scores and refined relative pose too: a pair the ground truth fits far worse than
+//! the refined pose is a jump in the ground truth that the images do not show
+//! (docs/slam-results.md, *Repeated images and jumps in 7-Scenes' ground truth*).
+//!
+//! cargo run --release --example refined_gt_check -- SEQUENCE CAMERA FIRST LAST [GAP] [--each]
 
 use anyhow::bail;
 use sdf_slam::camera::{Camera, RayTable};
@@ -26,11 +30,13 @@ use std::sync::Arc;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    let each = args.iter().any(|a| a == "--each");
+    let args: Vec<&String> = args.iter().filter(|a| *a != "--each").collect();
     if args.len() < 4 {
-        bail!("usage: refined_gt_check SEQUENCE CAMERA FIRST LAST [GAP]");
+        bail!("usage: refined_gt_check SEQUENCE CAMERA FIRST LAST [GAP] [--each]");
     }
-    let seq = TumSequence::open(&args[0])?;
-    let camera = Camera::load(&args[1])?;
+    let seq = TumSequence::open(args[0])?;
+    let camera = Camera::load(args[1])?;
     let (first, last): (usize, usize) = (args[2].parse()?, args[3].parse()?);
     let gap: usize = args.get(4).map_or(Ok(5), |s| s.parse())?;
     let last = last.min(seq.len());
@@ -87,6 +93,32 @@ fn main() -> anyhow::Result<()> {
                 &t_ab,
                 CORRECT_MATCH_PX,
             )?);
+        }
+        if each {
+            let (g, r) = (
+                &scores[0][scores[0].len() - 1],
+                &scores[1][scores[1].len() - 1],
+            );
+            let (t, q) = sdf_slam::geometry::pose_to_tum(&refined.unwrap_or(gt));
+            println!(
+                "{i} {}: ground truth {:.1} %, refined {:.1} % of {} matches{}; refined T_a_b {} {} {} {} {} {} {}",
+                i + gap,
+                100.0 * g.accuracy,
+                100.0 * r.accuracy,
+                g.matches,
+                if refined.is_some() {
+                    ""
+                } else {
+                    " (not refined: gates)"
+                },
+                t[0],
+                t[1],
+                t[2],
+                q[0],
+                q[1],
+                q[2],
+                q[3]
+            );
         }
     }
     let [gt, refined] = scores.map(|s| MatchingAccuracy::pool(&s));

@@ -13,7 +13,7 @@ use sdf_slam::metrics::{Alignment, DeltaUnit, ape, rpe};
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::ply::read_ply;
 use sdf_slam::slam::repeated_images::RepeatCounts;
-use sdf_slam::slam::report::MapAccuracy;
+use sdf_slam::slam::report::{MapAccuracy, Report};
 use sdf_slam::slam::system::Control;
 use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
@@ -798,6 +798,15 @@ fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
                 depth_only: 1
             }
         );
+        let report = Report::new(&out, &seq, &[], Default::default(), None);
+        assert!(
+            report.markdown().contains(
+                "| repeated images | 1 frames repeat both of the previous frame's images, 1 only its colour, 1 only its depth |"
+            ),
+            "{}",
+            report.markdown()
+        );
+        assert!(report.summary().contains("repeated images: 1 frames"));
         out.frames
             .iter()
             .filter(|r| r.keyframe.is_some())

@@ -577,6 +577,14 @@ impl Report {
             self.tracking.lost,
             self.tracking.reinitialised
         );
+        let r = &self.repeated_frames;
+        if r.total() > 0 {
+            let _ = writeln!(
+                s,
+                "repeated images: {} frames repeat both of the previous frame's images, {} only its colour, {} only its depth",
+                r.both, r.colour_only, r.depth_only
+            );
+        }
         if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
             let _ = writeln!(
                 s,

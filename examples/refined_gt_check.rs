@@ -9,9 +9,9 @@
 //! better is the closer to the colour images' motion (docs/slam-results.md, *Does the ground truth close
 //! its own loops*).
 //!
-//! With `--each`, every pair's two scores and refined relative pose too: a pair the ground truth fits far worse than
-//! the refined pose is a jump in the ground truth that the images do not show
-//! (docs/slam-results.md, *Repeated images and jumps in 7-Scenes' ground truth*).
+//! With `--each`, every pair's two scores and refined relative pose too: a pair the ground
+//! truth fits far worse than the refined pose is a jump in the ground truth that the images
+//! do not show (docs/slam-results.md, *Repeated images and jumps in 7-Scenes' ground truth*).
 //!
 //! cargo run --release --example refined_gt_check -- SEQUENCE CAMERA FIRST LAST [GAP] [--each]
 
@@ -21,7 +21,7 @@ use sdf_slam::dataset::DepthImage;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::features::bf_matcher::matched_pixels;
 use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
-use sdf_slam::geometry::Pose;
+use sdf_slam::geometry::{Pose, pose_to_tum};
 use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
@@ -94,12 +94,8 @@ fn main() -> anyhow::Result<()> {
                 CORRECT_MATCH_PX,
             )?);
         }
-        if each {
-            let (g, r) = (
-                &scores[0][scores[0].len() - 1],
-                &scores[1][scores[1].len() - 1],
-            );
-            let (t, q) = sdf_slam::geometry::pose_to_tum(&refined.unwrap_or(gt));
+        if each && let (Some(g), Some(r)) = (scores[0].last(), scores[1].last()) {
+            let (t, q) = pose_to_tum(&refined.unwrap_or(gt));
             println!(
                 "{i} {}: ground truth {:.1} %, refined {:.1} % of {} matches{}; refined T_a_b {} {} {} {} {} {} {}",
                 i + gap,

@@ -783,8 +783,8 @@ fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
     std::fs::copy(depth(9), depth(10)).unwrap();
     std::fs::copy(&f[12].rgb_path, &f[13].rgb_path).unwrap();
     std::fs::copy(depth(12), depth(13)).unwrap();
-    let keyframes = |skip: bool| {
-        let mut cfg = config(false);
+    let keyframes = |skip: bool, threads: bool| {
+        let mut cfg = config(threads);
         cfg.keyframes.max_frames = 1;
         cfg.keyframes.skip_mismatched = skip;
         let out = slam(&dir, box_camera(), cfg, DepthMode::Sensor, false)
@@ -801,19 +801,28 @@ fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
         let report = Report::new(&out, &seq, &[], Default::default(), None);
         assert!(
             report.markdown().contains(
-                "| repeated images | 1 frames repeat both of the previous frame's images, 1 only its colour, 1 only its depth |"
+                "| repeated images | 1 frame repeats all of the previous frame's images, 1 only its colour, 1 only its depth |"
             ),
             "{}",
             report.markdown()
         );
-        assert!(report.summary().contains("repeated images: 1 frames"));
+        assert!(
+            report
+                .summary()
+                .contains("repeated images: 1 frame repeats")
+        );
         out.frames
             .iter()
             .filter(|r| r.keyframe.is_some())
             .map(|r| r.index)
             .collect::<Vec<_>>()
     };
-    let skipped = keyframes(true);
+    let skipped = keyframes(true, false);
+    assert_eq!(
+        keyframes(true, true),
+        skipped,
+        "threads and one thread alike"
+    );
     assert!(
         !skipped.contains(&6) && !skipped.contains(&10),
         "{skipped:?}"
@@ -821,7 +830,7 @@ fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
     for i in [5, 7, 9, 11, 13] {
         assert!(skipped.contains(&i), "frame {i}: {skipped:?}");
     }
-    let every = keyframes(false);
+    let every = keyframes(false, false);
     assert!(every.contains(&6) && every.contains(&10), "{every:?}");
 }
 

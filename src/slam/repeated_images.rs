@@ -2,7 +2,7 @@
 //!
 //! Some recordings hold frames whose images are byte-for-byte copies of the frame before. In
 //! the 7-Scenes kitchen (frames 222-799 of `7scenes_redkitchen_0_799`) one frame in four to
-//! six repeats the one before: 63 frames both images (the ground truth then stands still too),
+//! six repeats the one before: 63 frames both images (the ground truth then stands nearly still),
 //! 23 only the colour and 24 only the depth. Those 47 frames' colour and depth show two
 //! different instants, about a centimetre apart at that camera's speed. A keyframe made there pairs
 //! its keypoints with depth from the other instant; with `keyframes.skip_mismatched`
@@ -22,6 +22,7 @@ pub struct ImageKeys {
 }
 
 impl ImageKeys {
+    /// Hashes of the colour image and, when given, the depth image.
     pub fn new(rgb: &RgbImage, depth: Option<&DepthImage>) -> Self {
         let raw = rgb.as_raw();
         let words = raw.chunks(8).map(|c| {
@@ -84,7 +85,7 @@ impl Repeats {
 /// Frames of a run by what they repeat, for the report.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct RepeatCounts {
-    /// Both images repeat the previous frame's (or the colour, in a monocular run).
+    /// Every image repeats the previous frame's (both, or the colour in a monocular run).
     pub both: usize,
     pub colour_only: usize,
     pub depth_only: usize,
@@ -102,6 +103,19 @@ impl RepeatCounts {
 
     pub fn total(&self) -> usize {
         self.both + self.colour_only + self.depth_only
+    }
+
+    /// "N frames repeat all of the previous frame's images, N only its colour, N only its
+    /// depth", for the report.
+    pub fn describe(&self) -> String {
+        let (n, verb) = match self.both {
+            1 => ("frame", "repeats"),
+            _ => ("frames", "repeat"),
+        };
+        format!(
+            "{} {n} {verb} all of the previous frame's images, {} only its colour, {} only its depth",
+            self.both, self.colour_only, self.depth_only
+        )
     }
 }
 
@@ -207,5 +221,9 @@ mod tests {
             }
         );
         assert_eq!(c.total(), 4);
+        assert_eq!(
+            c.describe(),
+            "2 frames repeat all of the previous frame's images, 1 only its colour, 1 only its depth"
+        );
     }
 }

@@ -304,11 +304,7 @@ impl Report {
         );
         let r = &self.repeated_frames;
         if r.total() > 0 {
-            let _ = writeln!(
-                s,
-                "| repeated images | {} frames repeat both of the previous frame's images, {} only its colour, {} only its depth |",
-                r.both, r.colour_only, r.depth_only
-            );
+            let _ = writeln!(s, "| repeated images | {} |", r.describe());
         }
         let _ = writeln!(
             s,
@@ -579,11 +575,7 @@ impl Report {
         );
         let r = &self.repeated_frames;
         if r.total() > 0 {
-            let _ = writeln!(
-                s,
-                "repeated images: {} frames repeat both of the previous frame's images, {} only its colour, {} only its depth",
-                r.both, r.colour_only, r.depth_only
-            );
+            let _ = writeln!(s, "repeated images: {}", r.describe());
         }
         if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
             let _ = writeln!(

@@ -256,6 +256,18 @@ fn box_room() -> PathBuf {
     .clone()
 }
 
+/// A scratch copy of the box room, for tests that damage its files.
+fn box_room_copy(name: &str) -> common::ScratchDir {
+    let src = box_room();
+    let dir = tmp_dir(name);
+    for entry in walk(&src) {
+        let to = dir.join(entry.strip_prefix(&src).unwrap());
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(&entry, &to).unwrap();
+    }
+    dir
+}
+
 fn config(threads: bool) -> SlamConfig {
     let mut c = SlamConfig::default();
     c.system.threads = threads;
@@ -707,14 +719,7 @@ fn frames_between_keyframes_are_placed_by_frame_to_frame_depth() {
 
 #[test]
 fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
-    let src = box_room();
-    let dir = tmp_dir("box_bad");
-    for entry in walk(&src) {
-        let rel = entry.strip_prefix(&src).unwrap();
-        let to = dir.join(rel);
-        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
-        std::fs::copy(&entry, &to).unwrap();
-    }
+    let dir = box_room_copy("box_bad");
     let seq = TumSequence::open(&dir).unwrap();
     // Frame 8 black, frame 12 noise, frame 16 not a PNG.
     let black = RgbImage::new(320, 240);
@@ -766,14 +771,7 @@ fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
 
 #[test]
 fn no_keyframe_where_only_one_of_colour_and_depth_repeats_the_previous_frame() {
-    let src = box_room();
-    let dir = tmp_dir("box_repeats");
-    for entry in walk(&src) {
-        let rel = entry.strip_prefix(&src).unwrap();
-        let to = dir.join(rel);
-        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
-        std::fs::copy(&entry, &to).unwrap();
-    }
+    let dir = box_room_copy("box_repeats");
     let seq = TumSequence::open(&dir).unwrap();
     let f = &seq.frames;
     // As a recorder that dropped frames: frame 6 repeats frame 5's colour, frame 10 frame 9's

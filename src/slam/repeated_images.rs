@@ -2,13 +2,14 @@
 //!
 //! Some recordings hold frames whose images are byte-for-byte copies of the frame before. In
 //! the 7-Scenes kitchen (frames 222-799 of `7scenes_redkitchen_0_799`) one frame in four to
-//! six repeats the one before: 63 frames both images (the ground truth then stands nearly still),
-//! 23 only the colour and 24 only the depth. Those 47 frames' colour and depth show two
-//! different instants, about a centimetre apart at that camera's speed. A keyframe made there pairs
-//! its keypoints with depth from the other instant; with `keyframes.skip_mismatched`
-//! [`super::tracking`] makes none there and the next frame decides instead (off by default:
-//! docs/slam-results.md, *Repeated images*). The run's report counts the repeats. They are
-//! found by content: a 64-bit hash of each decoded image, compared with the previous frame's.
+//! six repeats the one before: 63 frames both images (the ground truth then stands nearly
+//! still), 23 only the colour and 24 only the depth. Those 47 frames' colour and depth show
+//! two different instants, about a centimetre apart at that camera's speed. A keyframe made
+//! there pairs its keypoints with depth from the other instant; with
+//! `keyframes.skip_mismatched` [`super::tracking`] makes none there and the next frame
+//! decides instead (off by default: docs/slam-results.md, *Repeated images and jumps in
+//! 7-Scenes' ground truth*). The run's report counts the repeats. They are found by content:
+//! a 64-bit hash of each decoded image, compared with the previous frame's.
 
 use crate::dataset::DepthImage;
 use image::RgbImage;

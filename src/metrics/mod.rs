@@ -1,8 +1,9 @@
 //! Evaluation metrics: trajectory errors as evo computes them (ATE/RPE), the
 //! paper's errT/errR (eqs 11-14), feature-matching accuracy (Table 6),
-//! segmentation (eqs 16-17) and depth (eqs 18-20) accuracy, and summary
-//! statistics.
+//! segmentation (eqs 16-17) and depth (eqs 18-20) accuracy, summary statistics, and the
+//! per-axis scale of one trajectory's steps against another's.
 
+pub mod axis_scale;
 pub mod depth;
 pub mod matching;
 pub mod pose_error;
@@ -10,6 +11,7 @@ pub mod segmentation;
 pub mod stats;
 pub mod trajectory;
 
+pub use axis_scale::AxisScale;
 pub use depth::{DepthAccumulator, DepthMetrics, median_scale};
 pub use matching::{MatchingAccuracy, frame_pair_accuracy, matching_accuracy};
 pub use pose_error::{PoseError, PoseErrorSegment};

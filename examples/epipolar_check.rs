@@ -1,7 +1,7 @@
 //! Which relative motion do the colour images support: the ground truth's or the depth
 //! alignment's? For every frame pair `(i, i + GAP)` in `FIRST..LAST`, the second frame's depth
-//! is aligned to the first's (`slam::depth_alignment`, the keyframe alignments' settings and
-//! gates, started from the ground truth), and:
+//! is aligned to the first's (`slam::keyframe_alignment::PairAlignment`: the keyframe
+//! alignments' settings and gates, started from the ground truth), and:
 //!
 //! * the ground truth's step is compared with the depth-refined step per camera axis
 //!   ([`AxisScale`]: translation and rotation-vector slopes, every refined pair);
@@ -15,18 +15,17 @@
 //!
 //! cargo run --release --example epipolar_check -- SEQUENCE CAMERA FIRST LAST [GAP] [--each]
 
-use anyhow::bail;
+use anyhow::{Context, bail};
 use nalgebra::{Matrix3, Vector3};
-use sdf_slam::camera::{Camera, RayTable};
-use sdf_slam::dataset::{DepthImage, TumSequence};
+use sdf_slam::camera::Camera;
+use sdf_slam::dataset::TumSequence;
 use sdf_slam::features::bf_matcher::matched_pixels;
 use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
 use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{AxisScale, Stats};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
-use sdf_slam::slam::depth_alignment::{DepthModel, align};
-use std::sync::Arc;
+use sdf_slam::slam::keyframe_alignment::PairAlignment;
 
 /// Inlier gate on the epipolar distance, pixels.
 const GATE_PX: f64 = 1.5;
@@ -92,12 +91,7 @@ fn main() -> anyhow::Result<()> {
         bail!("GAP must be at least 1");
     }
     let last = last.min(seq.len());
-    let cfg = SlamConfig::default();
-    let dense = &cfg.dense;
-    let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
-    let stride = cfg.map.pixel_stride;
-    let rays = Arc::new(RayTable::new(&camera, stride));
-    let view = |depth: &DepthImage| depth.subsample(stride);
+    let aligner = PairAlignment::new(&camera, &SlamConfig::default());
     let orb = OrbConfig::default();
     let gate = GATE_PX / camera.fx;
 
@@ -113,26 +107,11 @@ fn main() -> anyhow::Result<()> {
         else {
             continue;
         };
-        if (depth_a.width, depth_a.height) != (camera.width, camera.height) {
-            bail!(
-                "frame {i}'s depth is {}x{} but the camera is {}x{}",
-                depth_a.width,
-                depth_a.height,
-                camera.width,
-                camera.height
-            );
-        }
         let gt = pa.inverse() * pb;
-        let Some(refined) = DepthModel::new(
-            &view(depth_a),
-            &camera,
-            rays.clone(),
-            dense.model_step,
-            range,
-        )
-        .and_then(|model| align(&model, &view(depth_b), None, &gt, range, dense))
-        .filter(|found| found.passes_edge_gates(&gt, dense))
-        .map(|found| found.pose) else {
+        let Some(refined) = aligner
+            .refine(depth_a, depth_b, &gt)
+            .with_context(|| format!("frames {i} and {}", i + gap))?
+        else {
             continue;
         };
         scale.add(&gt, &refined);

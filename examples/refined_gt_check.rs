@@ -2,10 +2,10 @@
 //! depth images, fit their colour images better: ORB + BF matches of every frame pair
 //! `(i, i + GAP)` in `FIRST..LAST`, scored as `eval matching` scores them (A's depth, the
 //! camera with distortion, correct within 5 px) against the ground truth's relative pose and
-//! against that pose refined by the SLAM's depth alignment (`slam::depth_alignment`, the
-//! keyframe alignments' settings and gates, on the sensor's depth at every
-//! `map.pixel_stride`-th pixel, without the map's depth-edge filter; the ground truth where
-//! the alignment fails its gates). ORB takes no part in either pose, so the pose its matches fit
+//! against that pose refined by the SLAM's depth alignment
+//! (`slam::keyframe_alignment::PairAlignment`: the keyframe alignments' settings and gates, on
+//! the sensor's depth at every `map.pixel_stride`-th pixel, without the map's depth-edge
+//! filter; the ground truth where the alignment fails its gates). ORB takes no part in either pose, so the pose its matches fit
 //! better is the closer to the colour images' motion (docs/slam-results.md, *Does the ground truth close
 //! its own loops*).
 //!
@@ -15,9 +15,8 @@
 //!
 //! cargo run --release --example refined_gt_check -- SEQUENCE CAMERA FIRST LAST [GAP] [--each]
 
-use anyhow::bail;
-use sdf_slam::camera::{Camera, RayTable};
-use sdf_slam::dataset::DepthImage;
+use anyhow::{Context, bail};
+use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::features::bf_matcher::matched_pixels;
 use sdf_slam::features::orb::{OrbConfig, detect_and_compute};
@@ -25,8 +24,7 @@ use sdf_slam::geometry::{Pose, pose_to_tum};
 use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
-use sdf_slam::slam::depth_alignment::{DepthModel, align};
-use std::sync::Arc;
+use sdf_slam::slam::keyframe_alignment::PairAlignment;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -41,12 +39,7 @@ fn main() -> anyhow::Result<()> {
     let gap: usize = args.get(4).map_or(Ok(5), |s| s.parse())?;
     let last = last.min(seq.len());
 
-    let cfg = SlamConfig::default();
-    let dense = &cfg.dense;
-    let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
-    let stride = cfg.map.pixel_stride;
-    let rays = Arc::new(RayTable::new(&camera, stride));
-    let view = |depth: &DepthImage| depth.subsample(stride);
+    let aligner = PairAlignment::new(&camera, &SlamConfig::default());
     let orb = OrbConfig::default();
     // Under the ground truth's relative pose, and under the refined one.
     let mut scores: [Vec<MatchingAccuracy>; 2] = Default::default();
@@ -58,27 +51,11 @@ fn main() -> anyhow::Result<()> {
         else {
             continue;
         };
-        if (depth_a.width, depth_a.height) != (camera.width, camera.height) {
-            bail!(
-                "frame {i}'s depth is {}x{} but the camera is {}x{}",
-                depth_a.width,
-                depth_a.height,
-                camera.width,
-                camera.height
-            );
-        }
         pairs += 1;
         let gt = pa.inverse() * pb;
-        let refined = DepthModel::new(
-            &view(depth_a),
-            &camera,
-            rays.clone(),
-            dense.model_step,
-            range,
-        )
-        .and_then(|model| align(&model, &view(depth_b), None, &gt, range, dense))
-        .filter(|found| found.passes_edge_gates(&gt, dense))
-        .map(|found| found.pose);
+        let refined = aligner
+            .refine(depth_a, depth_b, &gt)
+            .with_context(|| format!("frames {i} and {}", i + gap))?;
         refined_pairs += refined.is_some() as usize;
         let fa = detect_and_compute(&rgb_to_gray(&a.rgb), &orb)?;
         let fb = detect_and_compute(&rgb_to_gray(&b.rgb), &orb)?;

@@ -16,6 +16,7 @@ use super::map::{ConstraintKind, KeyFrame, Map};
 use super::pose_graph::{Edge, adjoint, information};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
+use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use crate::raster::GrayF32;
 use nalgebra::{Matrix6, Vector6};
@@ -217,6 +218,54 @@ pub fn keyframe_edges(
     (edges, summary)
 }
 
+/// Two full-resolution depth images of one camera aligned as the keyframe alignments align
+/// keyframes: the `[dense]` settings and edge gates of a [`SlamConfig`], every
+/// `map.pixel_stride`-th pixel, without the map's depth-edge filter. For the diagnostics that
+/// hold a sequence's frames against its ground truth (`examples/refined_gt_check.rs`,
+/// `examples/epipolar_check.rs`).
+pub struct PairAlignment {
+    camera: Camera,
+    rays: Arc<RayTable>,
+    stride: u32,
+    range: (f64, f64),
+    dense: DenseConfig,
+}
+
+impl PairAlignment {
+    pub fn new(camera: &Camera, cfg: &SlamConfig) -> Self {
+        let stride = cfg.map.pixel_stride;
+        Self {
+            camera: camera.clone(),
+            rays: Arc::new(RayTable::new(camera, stride)),
+            stride,
+            range: (cfg.tracking.min_depth, cfg.tracking.max_depth),
+            dense: cfg.dense.clone(),
+        }
+    }
+
+    /// `T_a_b` refined from `initial` by aligning `b` to `a`; `Ok(None)` when the alignment
+    /// fails or its gates, an error when an image is not the camera's size.
+    pub fn refine(&self, a: &DepthImage, b: &DepthImage, initial: &Pose) -> Result<Option<Pose>> {
+        let (c, d) = (&self.camera, &self.dense);
+        if let Some(bad) = [a, b]
+            .into_iter()
+            .find(|x| (x.width, x.height) != (c.width, c.height))
+        {
+            return Err(Error::msg(format!(
+                "a depth image is {}x{} but the camera is {}x{}",
+                bad.width, bad.height, c.width, c.height
+            )));
+        }
+        let (a, b) = (a.subsample(self.stride), b.subsample(self.stride));
+        Ok(
+            DepthModel::new(&a, c, self.rays.clone(), d.model_step, self.range)
+                .and_then(|model| align(&model, &b, None, initial, self.range, d))
+                .filter(|found| found.passes_edge_gates(initial, d))
+                .map(|found| found.pose),
+        )
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -289,6 +338,31 @@ pub(crate) mod tests {
             ..Map::default()
         };
         (map, truth)
+    }
+
+    #[test]
+    fn a_pair_alignment_finds_the_relative_pose_and_refuses_an_image_of_another_size() {
+        let camera = Camera::tum_fr1().resized(320, 240);
+        let (_, truth) = scene(&camera);
+        let mut cfg = config(1);
+        cfg.map.pixel_stride = 2;
+        let pair = PairAlignment::new(&camera, &cfg);
+        let (a, b) = (render(&camera, &truth[0]), render(&camera, &truth[1]));
+        let expected = truth[0].inverse() * truth[1];
+        let start = expected
+            * Pose::from_parts(
+                Translation3::new(0.008, -0.006, 0.004),
+                UnitQuaternion::from_euler_angles(0.004, 0.0, -0.003),
+            );
+        let found = pair.refine(&a, &b, &start).unwrap().expect("aligned");
+        let err = expected.inverse() * found;
+        assert!(
+            err.translation.vector.norm() < 3e-3 && err.rotation.angle() < 2e-3,
+            "{err:?}"
+        );
+        let small = DepthImage::new(160, 120);
+        let e = pair.refine(&a, &small, &start).unwrap_err().to_string();
+        assert!(e.contains("160x120") && e.contains("320x240"), "{e}");
     }
 
     #[test]

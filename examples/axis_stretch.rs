@@ -7,7 +7,7 @@
 //!
 //! cargo run --release --example axis_stretch -- GROUNDTRUTH ESTIMATE [GAP] [SX SY SZ]
 
-use anyhow::bail;
+use anyhow::{Context, bail};
 use nalgebra::{Translation3, Vector3};
 use sdf_slam::metrics::{Alignment, AxisScale, ape, associate};
 use sdf_slam::trajectory::Trajectory;
@@ -44,7 +44,7 @@ fn main() -> anyhow::Result<()> {
         Trajectory::read_tum(&args[0])?,
         Trajectory::read_tum(&args[1])?,
     );
-    let gap: usize = args.get(2).map_or(Ok(10), |s| s.parse())?;
+    let gap: usize = args.get(2).map_or(Ok(10), |s| s.parse()).context("GAP")?;
     if gap == 0 {
         bail!("GAP must be at least 1");
     }
@@ -70,7 +70,8 @@ fn main() -> anyhow::Result<()> {
         let v: Vec<f64> = args[3..6]
             .iter()
             .map(|s| s.parse())
-            .collect::<Result<_, _>>()?;
+            .collect::<Result<_, _>>()
+            .context("SX SY SZ")?;
         Vector3::new(v[0], v[1], v[2])
     } else if let Some(m) = measured {
         m

@@ -85,8 +85,11 @@ fn main() -> anyhow::Result<()> {
     }
     let seq = TumSequence::open(args[0])?;
     let camera = Camera::load(args[1])?;
-    let (first, last): (usize, usize) = (args[2].parse()?, args[3].parse()?);
-    let gap: usize = args.get(4).map_or(Ok(10), |s| s.parse())?;
+    let (first, last): (usize, usize) = (
+        args[2].parse().context("FIRST")?,
+        args[3].parse().context("LAST")?,
+    );
+    let gap: usize = args.get(4).map_or(Ok(10), |s| s.parse()).context("GAP")?;
     if gap == 0 {
         bail!("GAP must be at least 1");
     }

@@ -304,6 +304,14 @@ pub(crate) mod tests {
         cfg
     }
 
+    /// About 1 cm and 0.3 degrees: how far tracking is off in the test scenes.
+    fn slip() -> Pose {
+        Pose::from_parts(
+            Translation3::new(0.008, -0.006, 0.004),
+            UnitQuaternion::from_euler_angles(0.004, 0.0, -0.003),
+        )
+    }
+
     /// Three keyframes of the box room 2-4 cm apart; tracking's poses are off by about
     /// 1 cm, the third one's by 5 cm (tracking slipped; the ICP finds the truth).
     fn scene(camera: &Camera) -> (Map, Vec<Pose>) {
@@ -318,10 +326,7 @@ pub(crate) mod tests {
             .collect();
         let noise = [
             Pose::identity(),
-            Pose::from_parts(
-                Translation3::new(0.008, -0.006, 0.004),
-                UnitQuaternion::from_euler_angles(0.004, 0.0, -0.003),
-            ),
+            slip(),
             Pose::from_parts(
                 Translation3::new(0.05, 0.0, 0.0),
                 UnitQuaternion::identity(),
@@ -349,11 +354,7 @@ pub(crate) mod tests {
         let pair = PairAlignment::new(&camera, &cfg);
         let (a, b) = (render(&camera, &truth[0]), render(&camera, &truth[1]));
         let expected = truth[0].inverse() * truth[1];
-        let start = expected
-            * Pose::from_parts(
-                Translation3::new(0.008, -0.006, 0.004),
-                UnitQuaternion::from_euler_angles(0.004, 0.0, -0.003),
-            );
+        let start = expected * slip();
         let found = pair.refine(&a, &b, &start).unwrap().expect("aligned");
         let err = expected.inverse() * found;
         assert!(

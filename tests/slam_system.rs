@@ -712,7 +712,7 @@ fn frames_between_keyframes_are_placed_by_frame_to_frame_depth() {
     // With this scene's exact depth the refinement against the keyframe is already within
     // 0.2 mm, and the coarse frame-to-frame steps (about 2 mm off here) cannot improve on it:
     // measured 0.0022 m without, 0.0026 m with (on real Kinect depth the graph lowers the
-    // per-frame RPE by 20 %: docs/slam-results.md, "Frames placed by frame-to-frame depth").
+    // per-frame RPE by 20 %: lab/notes/slam-results.md, "Frames placed by frame-to-frame depth").
     assert!(rpe_on < 0.004, "{rpe_on} against {rpe_off}");
     assert!(ate(&on, &seq, Alignment::Se3) < 0.025);
 }

@@ -232,7 +232,7 @@ struct TrajArgs {
     /// samples around it (translation linearly, rotation by SLERP; none farther than
     /// --t-max-diff from a sample), instead of evo's nearest sample: a 100 Hz ground truth's
     /// nearest sample is up to 5 ms off, on a fast turn a floor under the per-frame RPE (0.23
-    /// degrees on fr1_rpy 0-79; docs/slam-results.md, "Poses at the colour instant"). Not evo's figures.
+    /// degrees on fr1_rpy 0-79; lab/notes/slam-results.md, "Poses at the colour instant"). Not evo's figures.
     #[arg(long)]
     interpolate: bool,
     /// Write the figures as JSON.

@@ -27,7 +27,7 @@ pub struct TumConfig {
     pub max_gt_gap: f64,
     /// Frames take the ground truth this many seconds after their colour stamps (negative:
     /// before). 0, as the benchmark's tools read it; fr1_rpy's colour images fit the ground
-    /// truth best about 8 ms before their stamps (docs/slam-results.md, *Depth taken after the colour*).
+    /// truth best about 8 ms before their stamps (lab/notes/slam-results.md, *Depth taken after the colour*).
     pub gt_time_offset: f64,
 }
 

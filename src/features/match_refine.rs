@@ -2,7 +2,7 @@
 //! where the patch around its first-image point correlates best (zero-mean NCC), within a
 //! few pixels, then by a parabola to the sub-pixel peak. FPFDCNN places a keypoint from a
 //! probability map predicted per 16x16 cell, a pixel or two from the corner it describes
-//! (docs/fpfdcnn-results.md, *Matches refined by patch correlation*); the images themselves say where the
+//! (lab/notes/fpfdcnn-results.md, *Matches refined by patch correlation*); the images themselves say where the
 //! matched corner lies. The first image's point stays where it is. Like
 //! [`super::patch::search`], with the first patch computed once per match and the second
 //! turned by the image's roll; unlike it, a flat patch never wins, each axis takes its
@@ -35,7 +35,7 @@ pub const MAX_SEARCH_PX: usize = 8;
 
 impl Default for MatchRefineConfig {
     /// 15x15 patches, moves up to 3 px, NCC at least 0.7: chosen on the validation pairs
-    /// (docs/fpfdcnn-results.md, *Matches refined by patch correlation*).
+    /// (lab/notes/fpfdcnn-results.md, *Matches refined by patch correlation*).
     fn default() -> Self {
         MatchRefineConfig {
             patch_radius: 7,

@@ -57,7 +57,7 @@ pub struct SequenceSource {
     pub val_fraction: Option<f64>,
     /// The posed pairs read the ground truth this many milliseconds after each colour stamp
     /// (negative: before; at most 100 either way). fr1_rpy's colour images fit the ground
-    /// truth best about 8 ms before their stamps (docs/slam-results.md, *Depth taken after the colour*).
+    /// truth best about 8 ms before their stamps (lab/notes/slam-results.md, *Depth taken after the colour*).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub gt_time_offset_ms: f64,
 }
@@ -118,7 +118,7 @@ pub struct FpDataConfig {
     /// What marks the detector targets: the paper's single-scale Harris corners, or ORB's
     /// detector (FAST corners ranked by their Harris response on each level of an
     /// eight-level pyramid, OpenCV's defaults) in full-resolution pixels, whose keypoints
-    /// are found again far more often (docs/fpfdcnn-results.md, *Where the deficit lies*). Descriptors are
+    /// are found again far more often (lab/notes/fpfdcnn-results.md, *Where the deficit lies*). Descriptors are
     /// trained on the FP pairs' Harris corners either way.
     pub target_detector: TargetDetector,
     /// Share of each sequence's frames (the last ones) kept for validation; a sequence's own
@@ -133,7 +133,7 @@ pub struct FpDataConfig {
     /// Each training posed pair's image B rolled about its window's centre by a uniform
     /// angle within ± this many degrees (its targets and matches with it; 0: as recorded).
     /// Posed pairs otherwise turn about the optical axis only as much as their camera did,
-    /// and descriptors trained on them lose most matches at a roll of 15 degrees (docs/fpfdcnn-results.md, *Roll:
+    /// and descriptors trained on them lose most matches at a roll of 15 degrees (lab/notes/fpfdcnn-results.md, *Roll:
     /// stages 15 and 18*).
     pub posed_roll_deg: f64,
 }

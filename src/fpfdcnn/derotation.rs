@@ -2,7 +2,7 @@
 //!
 //! FPFDCNN's descriptors are learned at the orientation the images were taken in, not steered
 //! by a keypoint orientation as ORB's are (rotated BRIEF), so a camera that rolls about its
-//! optical axis between two images costs it matches (docs/fpfdcnn-results.md, *Roll: stages 15 and 18*). A roll
+//! optical axis between two images costs it matches (lab/notes/fpfdcnn-results.md, *Roll: stages 15 and 18*). A roll
 //! turns the whole image about the principal point, so it shows in the global image motion the
 //! guided range matcher already estimates ([`guided_range_match`]): when that affine motion
 //! rotates by at least [`DerotationConfig::min_deg`], image B is turned back by that angle
@@ -23,7 +23,7 @@ use crate::raster::{GrayF32, gray_from_f32};
 use image::GrayImage;
 
 /// Default [`DerotationConfig::min_deg`] of `eval matching`: 5 degrees, adopted 2026-11-30 by
-/// a rule fixed before the validation runs (docs/fpfdcnn-results.md, *Roll-compensated matching*): on the
+/// a rule fixed before the validation runs (lab/notes/fpfdcnn-results.md, *Roll-compensated matching*): on the
 /// validation pairs rolled by 15 / 30 degrees it gave 34 % / 194 % more correct matches on
 /// 7-Scenes and 39 % / 231 % more on fr1_rpy, and upright pairs were never turned.
 pub const DEFAULT_DEROTATE_DEG: f64 = 5.0;

@@ -140,10 +140,10 @@ pub const DEFAULT_SMOOTHING: f32 = 2.0;
 /// Default [`DetectorConfig::border`]: 16 px. Keypoints near the border are the least often
 /// seen again in the other image of a pair; chosen on the validation pairs (2026-11-28,
 /// stage-10 weights, four placements): 6-12 % more correct matches than with 4 px at the
-/// same accuracy (docs/fpfdcnn-results.md, *Stage 10*). `slam` sets its own (`fpfdcnn_border`).
+/// same accuracy (lab/notes/fpfdcnn-results.md, *Stage 10*). `slam` sets its own (`fpfdcnn_border`).
 pub const DEFAULT_BORDER: usize = 16;
 
-/// Default [`DetectorConfig::average_descriptors`]: on, adopted 2026-12-01 (docs/fpfdcnn-results.md,
+/// Default [`DetectorConfig::average_descriptors`]: on, adopted 2026-12-01 (lab/notes/fpfdcnn-results.md,
 /// *Descriptors averaged over the grid placements*): on the validation pairs with four
 /// placements 28-39 % more correct matches at 0.9-3.0 points more accuracy; on the final
 /// split 116 % / 146 % of ORB + BF's correct matches at 76.4 % / 78.7 % (clear / blurred).
@@ -153,7 +153,7 @@ pub const DEFAULT_AVERAGE_DESCRIPTORS: bool = true;
 pub const MAX_DESCRIPTOR_SPREAD: usize = 64;
 
 /// Default [`DetectorConfig::descriptor_spread`]: 6 px, adopted 2026-12-01 for one pass
-/// (docs/fpfdcnn-results.md, *Descriptors spread in one pass*): chosen among 2, 4, 6 and 8 px on the
+/// (lab/notes/fpfdcnn-results.md, *Descriptors spread in one pass*): chosen among 2, 4, 6 and 8 px on the
 /// validation pairs, where it gave one pass 19 % more correct matches at 1.7 points more
 /// mean accuracy (stage-18 export); on the final split 73.3 % / 74.6 % (clear / blurred)
 /// against 71.7 % / 73.1 % without, with 16-17 % more correct matches.

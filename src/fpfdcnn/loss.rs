@@ -29,7 +29,7 @@
 //!   default): the same for the descriptors, which are sampled from a map 16 times
 //!   coarser than the image, so one placement's descriptor of a point depends on where
 //!   the grid falls (averaging four placements' descriptors gives 28-39 % more correct
-//!   matches, docs/fpfdcnn-results.md *Descriptors averaged over the grid placements*). At A's matched
+//!   matches, lab/notes/fpfdcnn-results.md *Descriptors averaged over the grid placements*). At A's matched
 //!   points inside the shifted crop, both descriptors are pulled towards their normalised
 //!   mean (detached) by cosine distance ([`descriptor_shift_consistency`]).
 //!

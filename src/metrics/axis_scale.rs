@@ -2,7 +2,7 @@
 //! the reference's step on the estimate's, per axis of the first camera's frame, for the
 //! translation and for the rotation vector. An isotropic scale error gives equal slopes; a
 //! reference that trades one motion for another (vertical translation for pitch, say) gives
-//! slopes that differ by axis (docs/slam-results.md, *Repeated images and jumps in 7-Scenes'
+//! slopes that differ by axis (lab/notes/slam-results.md, *Repeated images and jumps in 7-Scenes'
 //! ground truth*).
 
 use crate::geometry::Pose;

@@ -95,7 +95,7 @@ pub fn match_error_vectors(
 /// How many of one pair's match errors lie within `tolerance_px` of the pair's common
 /// offset, the component-wise median of its finite errors. A ground-truth pose or clock
 /// that is off moves every match's projection alike (on TUM fr1_rpy by up to 9 px a pair,
-/// docs/fpfdcnn-results.md *What the fr1_rpy pairs' accuracy measures*); this count asks how well the
+/// lab/notes/fpfdcnn-results.md *What the fr1_rpy pairs' accuracy measures*); this count asks how well the
 /// matches agree with one another's motion instead. A diagnostic beside the paper's
 /// accuracy, not a replacement: a matcher whose errors all share a direction scores well.
 pub fn within_common_offset(errors: &[Vector2<f64>], tolerance_px: f64) -> usize {

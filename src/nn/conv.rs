@@ -42,7 +42,7 @@ use super::{dense_conv_kernel, depthwise_kernel};
 /// Which implementation [`conv2d`] and [`crate::nn::max_pool2d`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum OpImpl {
-    /// Per op and device, whichever measured faster (`examples/conv_speed.rs`, 2-core VM):
+    /// Per op and device, whichever measured faster (`lab/examples/conv_speed.rs`, 2-core VM):
     ///
     /// * ndarray with autodiff (training): the composite ops — Burn's convolution backward
     ///   there is 10–600× slower — except depthwise and dense convolutions (below).

@@ -14,7 +14,7 @@
 //! products stay in cache while each point's transformed kernels stream past. Where reading
 //! the kernels once a band would read more than writing and reading back the whole image's
 //! transformed input and products (deep layers at low resolution), the image goes whole
-//! instead, each point's kernels read once (docs/cpu-speed.md).
+//! instead, each point's kernels read once (lab/notes/cpu-speed.md).
 
 use super::nhwc::{Activation, activate, simd_fn};
 use rayon::prelude::*;

@@ -8,7 +8,7 @@
 //! ([`super::frame_graph`]), the keyframes' depth edges. Measured on fr1_rpy 0-79 against the
 //! ground truth interpolated at each instant, the frames' rotation from one to the next
 //! agrees with the ground truth's between the depth stamps 14 % better than with that between
-//! the colour stamps (docs/slam-results.md, *Poses at the colour instant*).
+//! the colour stamps (lab/notes/slam-results.md, *Poses at the colour instant*).
 //!
 //! [`move_to_colour_instants`] therefore takes each frame's final pose as the depth's and
 //! moves it along the trajectory to the colour's instant: between the frame and its previous

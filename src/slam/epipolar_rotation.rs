@@ -5,7 +5,7 @@
 //! SDFCNN predicted. Where the prediction is pressed towards its middle (near points too far),
 //! PnP explains part of a turn as a shift, so monocular tracking turns too little and moves too
 //! far; with the ground truth's rotation (an oracle) tracking alone is metric on held-back
-//! frames (docs/slam-results.md, *Where the monocular trajectory's scale comes from*). The
+//! frames (lab/notes/slam-results.md, *Where the monocular trajectory's scale comes from*). The
 //! epipolar constraint `b₂ · (t × R b₁) = 0` between a keypoint's bearing in the keyframe and
 //! in the frame does not read depth, so it gives the rotation without that bias; the depth
 //! then sets only the translation's length.

@@ -221,8 +221,8 @@ pub fn keyframe_edges(
 /// Two full-resolution depth images of one camera aligned as the keyframe alignments align
 /// keyframes: the `[dense]` settings and edge gates of a [`SlamConfig`], every
 /// `map.pixel_stride`-th pixel, without the map's depth-edge filter. For the diagnostics that
-/// hold a sequence's frames against its ground truth (`examples/refined_gt_check.rs`,
-/// `examples/epipolar_check.rs`).
+/// hold a sequence's frames against its ground truth (`lab/examples/refined_gt_check.rs`,
+/// `lab/examples/epipolar_check.rs`).
 pub struct PairAlignment {
     camera: Camera,
     rays: Arc<RayTable>,

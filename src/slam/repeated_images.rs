@@ -7,7 +7,7 @@
 //! two different instants, about a centimetre apart at that camera's speed. A keyframe made
 //! there pairs its keypoints with depth from the other instant; with
 //! `keyframes.skip_mismatched` [`super::tracking`] makes none there and the next frame
-//! decides instead (off by default: docs/slam-results.md, *Repeated images and jumps in
+//! decides instead (off by default: lab/notes/slam-results.md, *Repeated images and jumps in
 //! 7-Scenes' ground truth*). The run's report counts the repeats. They are found by content:
 //! a 64-bit hash of each decoded image, compared with the previous frame's.
 

@@ -224,7 +224,7 @@ pub struct TrackingCounters {
 /// already. On fr1_rpy 0-79 with ORB keypoints, 1.3 ms a frame against 12 ms with the model
 /// every second pixel, both levels and 10 iterations, for the same per-frame RPE (0.0055 m);
 /// the model every second pixel with this alignment is closer on exact synthetic depth but
-/// slowed ORB's tracking below its target (docs/slam-results.md, "Frames placed by frame-to-frame depth").
+/// slowed ORB's tracking below its target (lab/notes/slam-results.md, "Frames placed by frame-to-frame depth").
 const FRAME_MODEL_STEP: usize = 4;
 const FRAME_ITERATIONS: usize = 3;
 

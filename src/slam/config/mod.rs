@@ -606,7 +606,7 @@ impl Default for LabelVoteConfig {
 pub enum EdgeInformation {
     Fixed,
     Hessian,
-    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: docs/slam-results.md,
+    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: lab/notes/slam-results.md,
     /// "Keyframe edges shaped by the alignment's curvature").
     Loops,
 }

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Where the real data and pretrained weights used by configs/train/sdfcnn_real.toml, configs/train/fpfdcnn.toml
+# Where the real data and pretrained weights used by configs/train/sdfcnn_real.toml, configs/train/fpfdcnn/
 # and the README's measurements come from, and how to fetch them. The project's tests need none
 # of it (they use datasets/fixtures). Run from the repository root:
 #

@@ -38,7 +38,7 @@ struct Cli {
 /// Training from a config file.
 #[derive(clap::Args, Debug)]
 struct RunArgs {
-    /// Training config (TOML), e.g. configs/train/fpfdcnn.toml.
+    /// Training config (TOML), e.g. configs/train/fpfdcnn_tiny.toml.
     #[arg(long)]
     config: Option<PathBuf>,
     /// Continue from the last checkpoint of the output folder (sweeps always resume).

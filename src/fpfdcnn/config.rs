@@ -178,7 +178,7 @@ impl FpfdcnnTrainConfig {
                     path,
                     format!(
                         "these keys have moved into sections: {moved} (the shape every \
-                         training config shares; see configs/train/fpfdcnn.toml)"
+                         training config shares; see configs/train/fpfdcnn/)"
                     ),
                 ));
             }

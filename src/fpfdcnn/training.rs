@@ -1,4 +1,4 @@
-//! FPFDCNN trainer: `train --config configs/train/fpfdcnn*.toml`.
+//! FPFDCNN trainer: `train --config configs/train/fpfdcnn/NN_*.toml` (or `fpfdcnn_tiny.toml`).
 //!
 //! Pairs of frames with their eqs 5-7 targets and the detector, localization and
 //! descriptor losses; Adam by default (`[optimizer]`). The run itself (resume, progress

@@ -31,6 +31,7 @@ pub mod pnp;
 pub mod range_matcher;
 pub mod raster;
 pub mod sdfcnn;
+pub mod signals;
 pub mod slam;
 pub mod synth;
 pub mod training;

@@ -457,9 +457,27 @@ fn looped_fixture(dir: &Path, frames: usize) -> PathBuf {
 #[cfg(unix)]
 #[test]
 fn ctrl_c_stops_the_run_writes_its_outputs_and_exits_130() {
+    signal_stops_the_run("ctrl_c", libc::SIGINT, 130);
+}
+
+/// What `timeout`, systemd, Docker and schedulers send: handled as Ctrl-C is.
+#[cfg(unix)]
+#[test]
+fn sigterm_stops_the_run_writes_its_outputs_and_exits_143() {
+    signal_stops_the_run("sigterm", libc::SIGTERM, 143);
+}
+
+#[cfg(unix)]
+#[test]
+fn sighup_stops_the_run_writes_its_outputs_and_exits_129() {
+    signal_stops_the_run("sighup", libc::SIGHUP, 129);
+}
+
+#[cfg(unix)]
+fn signal_stops_the_run(name: &str, signal: i32, code: i32) {
     use std::io::{BufRead, BufReader};
     use std::process::Stdio;
-    let dir = tmp_dir("ctrl_c");
+    let dir = tmp_dir(name);
     let seq = looped_fixture(&dir, 600);
     let mut child = Command::new(env!("CARGO_BIN_EXE_slam"))
         .args(["--sequence", seq.to_str().unwrap(), "--camera", "fr1"])
@@ -478,11 +496,11 @@ fn ctrl_c_stops_the_run_writes_its_outputs_and_exits_130() {
     // Let it track a few frames (600 take far longer than this).
     std::thread::sleep(std::time::Duration::from_millis(1500));
     // SAFETY: kill sends a signal to the child we spawned.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGINT) }, 0);
+    assert_eq!(unsafe { libc::kill(child.id() as i32, signal) }, 0);
     let mut rest = String::new();
     let _ = std::io::Read::read_to_string(&mut err, &mut rest);
     let status = child.wait().unwrap();
-    assert_eq!(status.code(), Some(130), "{rest}");
+    assert_eq!(status.code(), Some(code), "{rest}");
     let out = dir.join("out");
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();

@@ -23,6 +23,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
 use sdf_slam::nn::BackendKind;
+use sdf_slam::signals::StopSignals;
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
 use sdf_slam::slam::tracking::FrameRecord;
@@ -287,24 +288,9 @@ fn open_sequence(cli: &Cli) -> Result<(PathBuf, TumSequence)> {
     Ok((sequence_path, sequence))
 }
 
-/// The stop flag Ctrl-C sets (a second Ctrl-C quits at once, exit 130).
-fn stop_on_ctrl_c() -> Result<Arc<AtomicBool>> {
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        ctrlc::set_handler(move || {
-            if stop.swap(true, Ordering::SeqCst) {
-                std::process::exit(130);
-            }
-            eprintln!("\nstopping after the current frame (Ctrl-C again to quit at once)");
-        })
-        .context("installing the Ctrl-C handler")?;
-    }
-    Ok(stop)
-}
-
 /// The progress bar, and the run's control: its log prints above the bar.
 fn progress(n: usize, stop: Arc<AtomicBool>) -> Result<(ProgressBar, Control)> {
+    let told = AtomicBool::new(false);
     let bar = ProgressBar::new(n as u64);
     bar.set_style(
         ProgressStyle::with_template(
@@ -316,10 +302,16 @@ fn progress(n: usize, stop: Arc<AtomicBool>) -> Result<(ProgressBar, Control)> {
     let log_bar = bar.clone();
     let log: Log = Arc::new(move |m: &str| log_bar.suspend(|| eprintln!("{m}")));
     let frame_bar = bar.clone();
+    let stop_seen = stop.clone();
     let control = Control {
         stop,
         log,
         on_frame: Some(Box::new(move |_r: &FrameRecord, p: &Progress| {
+            if stop_seen.load(Ordering::SeqCst) && !told.swap(true, Ordering::SeqCst) {
+                frame_bar.suspend(|| {
+                    eprintln!("\nstopping after the current frame (a second signal quits at once)")
+                });
+            }
             frame_bar.set_position(p.done as u64);
             frame_bar.set_message(format!("keyframes {} lost {}", p.keyframes, p.lost));
         })),
@@ -380,7 +372,8 @@ fn main() -> Result<()> {
     };
     slam.validate()?;
     // The handler first: the header below tells a caller the run has started.
-    let stop = stop_on_ctrl_c()?;
+    let signals = StopSignals::install().context("installing the signal handlers")?;
+    let stop = signals.flag();
     eprintln!(
         "sequence {} ({n} frames), camera {}, {} mode, {} keypoints{}, {} labels{}, {}",
         sequence.root.display(),
@@ -411,8 +404,9 @@ fn main() -> Result<()> {
     let report = write_outputs(&output, &sequence, &camera, &config, &out_dir)?;
     println!("{}", report.summary());
     if output.interrupted {
-        // The outputs cover the frames processed so far; the exit status says they stop early.
-        std::process::exit(130);
+        // The outputs cover the frames processed so far; the exit status says they stop early
+        // and why (128 + the signal).
+        std::process::exit(signals.exit_code());
     }
     if output.frames.is_empty() {
         anyhow::bail!(

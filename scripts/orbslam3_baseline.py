@@ -17,11 +17,11 @@ SEQUENCE_DIR is in the TUM layout: rgb.txt and depth.txt (or associations.txt), 
 groundtruth.txt for the score. Frames are the associated RGB-D pairs in order (associations.txt
 where it exists, else rgb.txt and depth.txt paired by nearest time stamp, at most 20 ms apart);
 --first/--count select from them as `slam`'s --first/--max-frames do; monocular mode reads
-their colour images only. Camera: a preset (fr1, fr2, fr3: configs/cameras/*.toml) or a camera.toml in the
-project's format; by default the sequence's camera.toml, else fr1. Depth images are 16-bit,
-metres = value / --depth-scale (5000, TUM's). ORB-SLAM3's settings are those of its TUM examples
-(Examples/RGB-D/TUM1.yaml): 1000 ORB features, 8 levels of scale 1.2, FAST thresholds 20 / 7,
-depth threshold 40 baselines of 0.07732 m.
+their colour images only. Camera: a preset (fr1, fr2, fr3: configs/cameras/*.toml) or a
+camera.toml in the project's format; by default the sequence's camera.toml, else fr1. Depth
+images are 16-bit, metres = value / --depth-scale (5000, TUM's). ORB-SLAM3's settings are those
+of its TUM examples (Examples/RGB-D/TUM1.yaml): 1000 ORB features, 8 levels of scale 1.2, FAST
+thresholds 20 / 7, depth threshold 40 baselines of 0.07732 m.
 
 The ORB vocabulary. ORB-SLAM3 needs a DBoW2 vocabulary of ORB descriptors; it was trained with
 ORBvoc.txt (k = 10, L = 6, up to a million words, trained by its authors on a large image set;

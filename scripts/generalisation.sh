@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# Leave-one-scene-out evaluation of SDFCNN: how its depth, and the monocular SLAM built on it,
+# hold in a room the network has never seen.
+#
+# For each real scene X, the bundled SDFCNN's recipe without any frame of X
+# (configs/train/generalisation/sdfcnn_without_X.toml) is trained, then scored on X:
+#   - depth (eval seg): δ<1.25, REL, RMS; the median scale the prediction needs (sensor depth /
+#     prediction, per image), its 10-90 % spread over the images, δ<1.25 after that scale;
+#   - monocular SLAM (slam --depth predicted): Sim(3) ATE, the Sim(3) scale (1 = metric) and
+#     the share of map points within 5 cm of the sensor's surface.
+# Figures on frames of a training scene are a different row (docs/results.md).
+#
+#   scripts/generalisation.sh [kitchen|tum ...]        (default: both)
+#
+# Environment: SHARED (default ../shared/data) holds the real scenes (scripts/get_data.sh);
+# OUT (default runs/generalisation) the runs and the table (OUT/table.md); BACKEND (default flex);
+# EPOCHS overrides the recipes' epochs (for a quick trial of the protocol only).
+# A scene's training resumes where it stopped; a finished one is not trained again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+SHARED=${SHARED:-../shared/data}
+OUT=${OUT:-runs/generalisation}
+BACKEND=${BACKEND:-flex}
+scenes=("$@")
+[ ${#scenes[@]} -gt 0 ] || scenes=(kitchen tum)
+
+cargo build --release --bins
+bin=target/release
+
+# The synthetic rooms of the recipe (generated once).
+if [ ! -d datasets/generated/synth_sdfcnn/nyu ]; then
+    "$bin/synth" --config configs/synth/sdfcnn_real.toml --out datasets/generated/synth_sdfcnn
+fi
+
+# Scene X: its folder, camera, frames scored for depth (FIRST END EVERY) and the segment the
+# monocular SLAM runs on (FIRST COUNT).
+scene_args() {
+    case "$1" in
+        kitchen)
+            SEQ=$SHARED/7scenes_redkitchen_0_799; CAM=$SEQ/camera.toml
+            DEPTH_FRAMES=(0 800 8); SLAM_SEGMENTS=("0 200" "700 100") ;;
+        tum)
+            SEQ=$SHARED/tum_fr1_rpy_head80; CAM=fr1
+            DEPTH_FRAMES=(0 80 1); SLAM_SEGMENTS=("0 80") ;;
+        *) echo "unknown scene '$1' (kitchen or tum)" >&2; exit 2 ;;
+    esac
+}
+
+py_field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+
+mkdir -p "$OUT"
+table=$OUT/table.md
+{
+    echo "| scene left out | frames | depth δ<1.25 | REL | median scale needed (10-90 %) | δ<1.25 after it | segment | mono Sim(3) ATE | scale | map within 5 cm |"
+    echo "|---|---|---|---|---|---|---|---|---|---|"
+} > "$table"
+
+for scene in "${scenes[@]}"; do
+    scene_args "$scene"
+    cfg=configs/train/generalisation/sdfcnn_without_$scene.toml
+    run=$OUT/sdfcnn_without_$scene
+    resume=()
+    [ -f "$run/last.json" ] && resume=(--resume)
+    epochs=()
+    [ -n "${EPOCHS:-}" ] && epochs=(--epochs "$EPOCHS")
+    "$bin/train" --config "$cfg" --out "$run" "${resume[@]}" "${epochs[@]}" --quiet
+
+    "$bin/eval" seg --checkpoint "$run" --backend "$BACKEND" --data "$SEQ" --camera "$CAM" \
+        --frames "${DEPTH_FRAMES[0]}" "${DEPTH_FRAMES[1]}" --every "${DEPTH_FRAMES[2]}" \
+        --json "$OUT/${scene}_depth.json"
+    j=$OUT/${scene}_depth.json
+    depth_cells=$(py_field "$j" "'%.3f | %.3f | %.2f (%.2f-%.2f) | %.3f' % (d['depth']['delta1'], d['depth']['rel'], d['scale']['median'], d['scale']['p10'], d['scale']['p90'], d['scale']['rescaled']['delta1'])")
+
+    for seg in "${SLAM_SEGMENTS[@]}"; do
+        read -r first count <<< "$seg"
+        mono=$OUT/${scene}_mono_${first}
+        "$bin/slam" --sequence "$SEQ" --camera "$CAM" --first "$first" --max-frames "$count" \
+            --depth predicted --labels sdfcnn --sdfcnn "$run" --backend "$BACKEND" --out "$mono"
+        slam_cells=$(py_field "$mono/report.json" "'%.4f m | %.3f | %.1f %%' % (d['ate']['stats']['rmse'], d['ate']['scale'], 100 * d['map_accuracy']['position_accuracy'])")
+        echo "| $scene | ${DEPTH_FRAMES[0]}-$((DEPTH_FRAMES[1] - 1)) every ${DEPTH_FRAMES[2]} | $depth_cells | $first-$((first + count - 1)) | $slam_cells |" >> "$table"
+    done
+done
+cat "$table"

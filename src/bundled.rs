@@ -1,6 +1,8 @@
 //! What `slam` uses when it is given nothing: the bundled network weights
 //! (`weights/fpfdcnn`, `weights/sdfcnn`) and a synthetic default sequence
-//! (`datasets/generated/default_sequence`), generated on first use.
+//! (`datasets/generated/default_sequence`), generated on first use; and the
+//! files of the source tree that `train`'s default run and the examples read
+//! ([`locate`]: configs, fixtures).
 //!
 //! Paths are relative to the crate root. They are looked up in the current
 //! directory first and then in the crate's source folder (where `cargo run`
@@ -47,6 +49,13 @@ pub fn is_checkpoint_folder(dir: &Path) -> bool {
 /// the current directory or the crate's source folder.
 pub fn bundled_weights(rel: &str) -> Option<PathBuf> {
     find_in(&search_roots(), rel, is_checkpoint_folder).map(|p| tidy(&p))
+}
+
+/// A crate-relative file or folder that ships with the source tree (a fixture under
+/// `datasets/fixtures/`, a config under `configs/`), looked up as the bundled weights are:
+/// in the current directory, then in the crate's source folder. `None` where neither has it.
+pub fn locate(rel: &str) -> Option<PathBuf> {
+    find_in(&search_roots(), rel, |p| p.exists()).map(|p| tidy(&p))
 }
 
 /// Where the default sequence is read from: an existing
@@ -163,6 +172,15 @@ mod tests {
         assert_eq!(tidy(Path::new("./x/y")), PathBuf::from("x/y"));
         assert!(search_roots()[1].join("Cargo.toml").is_file());
         std::fs::remove_dir_all(&base).ok();
+    }
+
+    #[test]
+    fn locate_finds_files_of_the_source_tree_only() {
+        // Tests run in the crate root, and the crate's folder is the second root anyway.
+        let fixture = locate("datasets/fixtures/nyuv2").expect("the NYUv2 fixture");
+        assert!(fixture.join("000433_rgb.png").is_file());
+        assert!(locate("configs/train/sdfcnn_tiny.toml").is_some_and(|p| p.is_file()));
+        assert_eq!(locate("datasets/fixtures/no_such_fixture"), None);
     }
 
     #[test]

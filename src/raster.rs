@@ -1,7 +1,8 @@
 //! Single-channel images and the few filters the feature code needs: grey conversion,
-//! Gaussian blur, Sobel gradients, bilinear sampling.
+//! Gaussian blur, Sobel gradients, bilinear sampling; and a picture of keypoint matches.
 
-use image::{GrayImage, RgbImage};
+use image::{GrayImage, Rgb, RgbImage};
+use nalgebra::Point2;
 use rayon::prelude::*;
 
 /// A row-major `f32` image.
@@ -162,9 +163,88 @@ pub fn gray_from_f32(img: &GrayF32) -> GrayImage {
     GrayImage::from_raw(img.width as u32, img.height as u32, data).unwrap_or_default()
 }
 
+/// Line colours of [`match_picture`], cycled so that neighbouring lines differ.
+const MATCH_COLOURS: [[u8; 3]; 6] = [
+    [40, 220, 60],
+    [250, 200, 30],
+    [60, 160, 255],
+    [240, 70, 200],
+    [250, 120, 40],
+    [80, 230, 220],
+];
+
+/// Two grey images side by side (`a` left, `b` right, top-aligned, slightly darkened) with
+/// a line from each match's pixel in `a` to its pixel in `b` (pairs as
+/// [`crate::fpfdcnn::evaluate::fpfdcnn_matches`] returns them), each line ended by a small
+/// square at both keypoints. Parts of a line outside the picture are left out.
+pub fn match_picture(
+    a: &GrayImage,
+    b: &GrayImage,
+    matches: &[(Point2<f64>, Point2<f64>)],
+) -> RgbImage {
+    let (wa, w) = (a.width(), a.width() + b.width());
+    let h = a.height().max(b.height()).max(1);
+    let mut img = RgbImage::new(w.max(1), h);
+    for (x0, g) in [(0, a), (wa, b)] {
+        for (x, y, p) in g.enumerate_pixels() {
+            let v = (p[0] as f32 * 0.8) as u8;
+            img.put_pixel(x0 + x, y, Rgb([v, v, v]));
+        }
+    }
+    let put = |img: &mut RgbImage, x: f64, y: f64, c: Rgb<u8>| {
+        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+            img.put_pixel(x as u32, y as u32, c);
+        }
+    };
+    for (k, (pa, pb)) in matches.iter().enumerate() {
+        let c = Rgb(MATCH_COLOURS[k % MATCH_COLOURS.len()]);
+        let (x1, y1, x2, y2) = (pa.x, pa.y, pb.x + wa as f64, pb.y);
+        if ![x1, y1, x2, y2].iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        let n = ((x2 - x1).abs().max((y2 - y1).abs()).ceil() as usize).clamp(1, 1 << 16);
+        for s in 0..=n {
+            let t = s as f64 / n as f64;
+            put(&mut img, x1 + t * (x2 - x1), y1 + t * (y2 - y1), c);
+        }
+        for (x, y) in [(x1, y1), (x2, y2)] {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    put(&mut img, x + dx as f64, y + dy as f64, c);
+                }
+            }
+        }
+    }
+    img
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn match_picture_puts_the_images_side_by_side_and_draws_each_match() {
+        let a = GrayImage::from_pixel(10, 6, image::Luma([100]));
+        let b = GrayImage::from_pixel(8, 4, image::Luma([200]));
+        let m = [
+            (Point2::new(2.0, 2.0), Point2::new(5.0, 2.0)),
+            (Point2::new(1.0, 5.0), Point2::new(f64::NAN, 0.0)),
+            (Point2::new(-50.0, 0.0), Point2::new(1.0, 0.0)),
+        ];
+        let img = match_picture(&a, &b, &m);
+        assert_eq!(img.dimensions(), (18, 6));
+        // Darkened images, black below the shorter one.
+        assert_eq!(img.get_pixel(0, 4), &Rgb([80, 80, 80]));
+        assert_eq!(img.get_pixel(17, 3), &Rgb([160, 160, 160]));
+        assert_eq!(img.get_pixel(17, 5), &Rgb([0, 0, 0]));
+        // The first match: a horizontal line of the first colour from (2, 2) to (15, 2).
+        let first = Rgb(MATCH_COLOURS[0]);
+        assert!((2..=15).all(|x| img.get_pixel(x, 2) == &first));
+        // The non-finite match is skipped; the third is clipped to the picture.
+        assert_eq!(img.get_pixel(1, 5), &Rgb([80, 80, 80]));
+        assert_eq!(img.get_pixel(0, 0), &Rgb(MATCH_COLOURS[2]));
+        assert_eq!(img.get_pixel(11, 0), &Rgb(MATCH_COLOURS[2]));
+    }
 
     #[test]
     fn sobel_of_a_ramp_is_constant() {

@@ -1,5 +1,9 @@
 //! `train`: command-line entry point for the SDF-SLAM networks.
 //!
+//! With no `--config` (and no subcommand) it trains the short default run of
+//! [`default_run`]: SDFCNN on the bundled NYUv2 fixture images into `runs/train/default`, then
+//! says what it trained, where the outputs are and how to run the real recipes.
+//!
 //! `train --config FILE [--resume] [--out DIR] [--backend ndarray|flex] [--epochs N]` trains
 //! the network the config names (`model = "fpfdcnn"` or `"sdfcnn"`), or runs a sweep of
 //! training runs (`model = "sweep"`, see [`sweep`]). `--dry-run` only
@@ -13,6 +17,7 @@
 //! output shape under the names of the paper's Table 12 (FPFDCNN) and Table 13 (SDFCNN), then
 //! the trainable-parameter count.
 
+mod default_run;
 mod sweep;
 mod trainers;
 
@@ -26,8 +31,16 @@ use sweep::Sweep;
 use trainers::Network;
 
 #[derive(Parser, Debug)]
-#[command(about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)")]
-#[command(args_conflicts_with_subcommands = true, arg_required_else_help = true)]
+#[command(
+    about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN)",
+    long_about = "Train and inspect the SDF-SLAM networks (FPFDCNN, SDFCNN).\n\n\
+        With no --config it trains the default run, configs/train/sdfcnn_tiny.toml on ndarray \
+        into runs/train/default: SDFCNN on the three bundled NYUv2 fixture images at 96x128 for \
+        60 epochs, a minute or two on 2 cores (an earlier default run there is replaced). Then \
+        it prints where the checkpoints, metrics.csv and plots are and the commands of the real \
+        recipes. --epochs, --out, --backend, --resume and --dry-run apply to it as to a config."
+)]
+#[command(args_conflicts_with_subcommands = true)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -38,7 +51,8 @@ struct Cli {
 /// Training from a config file.
 #[derive(clap::Args, Debug)]
 struct RunArgs {
-    /// Training config (TOML), e.g. configs/train/fpfdcnn_tiny.toml.
+    /// Training config (TOML), e.g. configs/train/fpfdcnn_tiny.toml [default: the default run,
+    /// configs/train/sdfcnn_tiny.toml into runs/train/default].
     #[arg(long)]
     config: Option<PathBuf>,
     /// Continue from the last checkpoint of the output folder (sweeps always resume).
@@ -122,10 +136,6 @@ fn main() -> Result<()> {
 }
 
 fn train(args: RunArgs) -> Result<()> {
-    let Some(config) = args.config else {
-        anyhow::bail!("give a training config with --config FILE (see configs/), or a subcommand");
-    };
-    let text = sdf_slam::io::read_text(&config)?;
     let opts = RunOptions {
         out: args.out,
         resume: args.resume,
@@ -133,6 +143,10 @@ fn train(args: RunArgs) -> Result<()> {
         epochs: args.epochs,
         quiet: args.quiet,
     };
+    let Some(config) = args.config else {
+        return default_run::run(&opts, args.dry_run);
+    };
+    let text = sdf_slam::io::read_text(&config)?;
     let model = config_model(&text, &config)?;
     if args.dry_run {
         if model == "sweep" {
@@ -261,4 +275,19 @@ fn summary(args: &SummaryArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn help_names_the_default_runs_config_and_epochs() {
+        let help = Cli::command().render_long_help().to_string();
+        let run = default_run::DefaultRun::new(&RunOptions::default()).unwrap();
+        let epochs = format!("for {} epochs", run.epochs().unwrap());
+        assert!(help.contains(&epochs), "{help}");
+        assert!(help.contains(default_run::CONFIG) && help.contains(default_run::OUT));
+    }
 }

@@ -14,7 +14,8 @@
 #
 # Environment: SHARED (default ../shared/data) holds the real scenes (scripts/get_data.sh);
 # OUT (default runs/generalisation) the runs and the table (OUT/table.md); BACKEND (default flex);
-# EPOCHS overrides the recipes' epochs (for a quick trial of the protocol only).
+# EPOCHS overrides the recipes' epochs (for a quick trial of the protocol only); BIN names a
+# folder of already built binaries (default: build them into target/release).
 # A scene's training resumes where it stopped; a finished one is not trained again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,8 +26,7 @@ BACKEND=${BACKEND:-flex}
 scenes=("$@")
 [ ${#scenes[@]} -gt 0 ] || scenes=(kitchen tum)
 
-cargo build --release --bins
-bin=target/release
+if [ -n "${BIN:-}" ]; then bin=$BIN; else cargo build --release --bins; bin=target/release; fi
 
 # The synthetic rooms of the recipe (generated once).
 if [ ! -d datasets/generated/synth_sdfcnn/nyu ]; then
@@ -52,7 +52,7 @@ py_field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(
 mkdir -p "$OUT"
 table=$OUT/table.md
 {
-    echo "| scene left out | frames | depth δ<1.25 | REL | median scale needed (10-90 %) | δ<1.25 after it | segment | mono Sim(3) ATE | scale | map within 5 cm |"
+    echo "| scene left out (epoch kept) | frames | depth δ<1.25 | REL | median scale needed (10-90 %) | δ<1.25 after it | segment | mono Sim(3) ATE | scale | map within 5 cm |"
     echo "|---|---|---|---|---|---|---|---|---|---|"
 } > "$table"
 
@@ -61,12 +61,17 @@ for scene in "${scenes[@]}"; do
     cfg=configs/train/generalisation/sdfcnn_without_$scene.toml
     run=$OUT/sdfcnn_without_$scene
     resume=()
-    [ -f "$run/last.json" ] && resume=(--resume)
+    [ -f "$run/checkpoints/last.json" ] && resume=(--resume)
     epochs=()
     [ -n "${EPOCHS:-}" ] && epochs=(--epochs "$EPOCHS")
     "$bin/train" --config "$cfg" --out "$run" "${resume[@]}" "${epochs[@]}" --quiet
 
-    "$bin/eval" seg --checkpoint "$run" --backend "$BACKEND" --data "$SEQ" --camera "$CAM" \
+    # The recipe's rule: the epoch with the lowest validation loss (on the scenes it keeps).
+    best=$(python3 -c "import csv,sys; r=list(csv.DictReader(open(sys.argv[1]))); print(min(r, key=lambda x: float(x['val_loss']))['epoch'])" "$run/metrics.csv")
+    ckpt=$(printf '%s/checkpoints/epoch-%04d' "$run" "$best")
+    echo "$scene left out: epoch $best has the lowest validation loss ($ckpt)"
+
+    "$bin/eval" seg --checkpoint "$ckpt" --backend "$BACKEND" --data "$SEQ" --camera "$CAM" \
         --frames "${DEPTH_FRAMES[0]}" "${DEPTH_FRAMES[1]}" --every "${DEPTH_FRAMES[2]}" \
         --json "$OUT/${scene}_depth.json"
     j=$OUT/${scene}_depth.json
@@ -76,9 +81,9 @@ for scene in "${scenes[@]}"; do
         read -r first count <<< "$seg"
         mono=$OUT/${scene}_mono_${first}
         "$bin/slam" --sequence "$SEQ" --camera "$CAM" --first "$first" --max-frames "$count" \
-            --depth predicted --labels sdfcnn --sdfcnn "$run" --backend "$BACKEND" --out "$mono"
+            --depth predicted --labels sdfcnn --sdfcnn "$ckpt" --backend "$BACKEND" --out "$mono"
         slam_cells=$(py_field "$mono/report.json" "'%.4f m | %.3f | %.1f %%' % (d['ate']['stats']['rmse'], d['ate']['scale'], 100 * d['map_accuracy']['position_accuracy'])")
-        echo "| $scene | ${DEPTH_FRAMES[0]}-$((DEPTH_FRAMES[1] - 1)) every ${DEPTH_FRAMES[2]} | $depth_cells | $first-$((first + count - 1)) | $slam_cells |" >> "$table"
+        echo "| $scene ($best) | ${DEPTH_FRAMES[0]}-$((DEPTH_FRAMES[1] - 1)) every ${DEPTH_FRAMES[2]} | $depth_cells | $first-$((first + count - 1)) | $slam_cells |" >> "$table"
     done
 done
 cat "$table"

@@ -43,7 +43,7 @@ fn main() -> anyhow::Result<()> {
         };
         let by_rgb = ra.inverse() * rb;
         let by_depth = da.inverse() * db;
-        let Some(icp) = align(&model, depth_b, None, &by_rgb, range, &cfg) else {
+        let Some(icp) = align(&model, depth_b, &by_rgb, range, &cfg) else {
             continue;
         };
         let e_rgb = rotation_angle(&(icp.pose.rotation.inverse() * by_rgb.rotation)).to_degrees();

@@ -132,7 +132,7 @@ fn main() -> anyhow::Result<()> {
                 continue;
             }
             candidates[long as usize] += 1;
-            let Some(found) = align(&model, &b.depth, None, &gt, range, dense) else {
+            let Some(found) = align(&model, &b.depth, &gt, range, dense) else {
                 continue;
             };
             if !found.passes_edge_gates(&gt, dense) {

@@ -13,20 +13,50 @@
 //! [`move_to_colour_instants`] therefore takes each frame's final pose as the depth's and
 //! moves it along the trajectory to the colour's instant: between the frame and its previous
 //! frame when the depth came after the colour (the usual case), towards the next frame when
-//! it came before, at that step's velocity ([`super::depth_sync::motion_over`]: interpolation,
-//! never more than the step). The neighbours' poses are read before any frame moves. Frames
+//! it came before, at that step's velocity ([`motion_over`]: interpolation, never more than
+//! the step). The neighbours' poses are read before any frame moves. Frames
 //! without an offset (7-Scenes, registered offline with equal stamps; monocular runs), frames
 //! without a tracked neighbour of the next or previous index, and frames whose offset is
 //! longer than the step to that neighbour or whose neighbour's depth is not on the colour
 //! instant's side keep their poses, to the bit. The map's keyframes do not move: only the
 //! trajectory written for the frames does, keyframes' own frames included (each record's
-//! relative pose, or its odometry pose without a reference keyframe). With
-//! `tracking.sync_depth` the depth is already at the colour's instant, so this is off.
+//! relative pose, or its odometry pose without a reference keyframe).
 
-use super::depth_sync::{MIN_OFFSET_S, motion_over};
 use super::map::Map;
 use super::tracking::{FrameRecord, FrameStatus};
 use crate::geometry::{Pose, renormalized};
+use nalgebra::{Translation3, UnitQuaternion};
+
+/// Offsets shorter than this (seconds) are treated as none.
+pub const MIN_OFFSET_S: f64 = 0.5e-3;
+
+/// The camera's motion over `offset_s` seconds after an instant, at the velocity of `step`
+/// (`T_prev⁻¹ T_now`, camera frame, taken over `step_s` seconds), to first order: the
+/// step's rotation vector and translation scaled by `offset_s / step_s`. That is
+/// `T_now⁻¹ T(now + offset)`, the depth camera's pose in the colour camera's frame when the
+/// depth comes `offset_s` after the colour. `None` when the offset is shorter than
+/// [`MIN_OFFSET_S`], longer than the step, or any input is not finite.
+pub fn motion_over(step: &Pose, step_s: f64, offset_s: f64) -> Option<Pose> {
+    if !(step_s.is_finite() && step_s > 1e-6 && offset_s.is_finite())
+        || offset_s.abs() < MIN_OFFSET_S
+        || offset_s.abs() > step_s
+    {
+        return None;
+    }
+    let s = offset_s / step_s;
+    let rotation = step.rotation.scaled_axis() * s;
+    let translation = step.translation.vector * s;
+    (rotation
+        .iter()
+        .chain(translation.iter())
+        .all(|v| v.is_finite()))
+    .then(|| {
+        Pose::from_parts(
+            Translation3::from(translation),
+            UnitQuaternion::from_scaled_axis(rotation),
+        )
+    })
+}
 
 /// Moves each frame's pose from its depth image's instant (`stamp + depth_offset(index)`) to
 /// its colour image's (`stamp`) in place. Returns how many frames moved.
@@ -78,8 +108,8 @@ pub fn move_to_colour_instants(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::slam::frame_blending::tests::{keyframe, record};
-    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use crate::slam::fixtures::{keyframe, record};
+    use nalgebra::Vector3;
 
     /// The camera at time `t`: it turns about y at 2 rad/s and moves along x at 0.3 m/s.
     fn truth_at(t: f64) -> Pose {
@@ -179,5 +209,24 @@ mod tests {
         let before = frames.clone();
         assert_eq!(move_to_colour_instants(&map, &mut frames, |_| 0.0), 0);
         assert_eq!(frames, before);
+    }
+
+    #[test]
+    fn motion_over_scales_the_step_and_refuses_what_it_cannot_extrapolate() {
+        let step = Pose::from_parts(
+            Translation3::new(0.03, 0.0, 0.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.06, 0.0)),
+        );
+        let m = motion_over(&step, 1.0 / 30.0, 0.01).unwrap();
+        assert!((m.translation.vector.x - 0.009).abs() < 1e-12);
+        assert!((m.rotation.scaled_axis().y - 0.018).abs() < 1e-12);
+        let back = motion_over(&step, 1.0 / 30.0, -0.01).unwrap();
+        assert!((back * m).rotation.angle() < 1e-12);
+        assert!((back.translation.vector + m.translation.vector).norm() < 1e-12);
+        assert!(motion_over(&step, 1.0 / 30.0, 0.0001).is_none());
+        assert!(motion_over(&step, 1.0 / 30.0, 0.05).is_none());
+        assert!(motion_over(&step, 0.0, 0.01).is_none());
+        assert!(motion_over(&step, f64::NAN, 0.01).is_none());
+        assert!(motion_over(&step, 1.0 / 30.0, f64::INFINITY).is_none());
     }
 }

@@ -4,7 +4,6 @@
 //! belong to neither. Sensor depth has the same defect, milder. Fusing them puts map
 //! points in empty space; this drops them, the usual step before TSDF fusion of
 //! predicted depth (CNN-SLAM, Tateno et al. 2017, fuses confidence-weighted depth).
-//! [`EdgeWindow`] asks the same of one keypoint before its depth becomes a 3D point.
 
 use crate::dataset::DepthImage;
 
@@ -36,33 +35,20 @@ pub fn drop_depth_edges(depth: &mut DepthImage, reach: u32, max_ratio: f32) -> u
     dropped
 }
 
-/// The test of [`drop_depth_edges`] at one keypoint: when its reading and the readings
-/// `reach` pixels to either side (along x or y) do not lie on one plane, the keypoint sits on
-/// or beside a depth discontinuity, and its reading may belong to either surface (a corner
-/// on an object's outline is one) or, with depth registered to the colour camera (7-Scenes'
-/// is good to about 3 px at edges), to the wrong one; such a keypoint gets no 3D point.
+/// The test of [`drop_depth_edges`]: whether a pixel's reading and the readings `reach`
+/// pixels to either side (along x or y) do not lie on one plane.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EdgeWindow {
+struct EdgeWindow {
     /// Pixels to either side.
-    pub reach: u32,
+    reach: u32,
     /// The largest second difference of inverse depth, times the depth, of a plane.
-    pub max_ratio: f32,
+    max_ratio: f32,
 }
 
 impl EdgeWindow {
     /// `None` (no test) when `max_ratio <= 0` or `reach == 0`.
-    pub fn new(reach: u32, max_ratio: f32) -> Option<Self> {
+    fn new(reach: u32, max_ratio: f32) -> Option<Self> {
         (max_ratio > 0.0 && reach > 0).then_some(EdgeWindow { reach, max_ratio })
-    }
-
-    /// Whether the pixel nearest to `(x, y)` lies on a depth discontinuity, as
-    /// [`drop_depth_edges`] decides (an axis whose pixel `reach` away on either side has no
-    /// reading or lies outside the image tells nothing); a pixel without a reading does not,
-    /// nor does any pixel of an image whose data does not hold `width * height` values.
-    pub fn straddles(&self, depth: &DepthImage, x: f64, y: f64) -> bool {
-        let (w, h) = (depth.width as i64, depth.height as i64);
-        depth.data.len() as i64 == w * h
-            && self.at_pixel(&depth.data, (w, h), x.round() as i64, y.round() as i64)
     }
 
     /// The test at integer pixel `(x, y)` of a row-major `w` x `h` image whose `data` hold
@@ -125,42 +111,5 @@ mod tests {
         let mut g = img.clone();
         assert_eq!(drop_depth_edges(&mut g, 3, 0.0), 0);
         assert_eq!(g.data, img.data);
-    }
-
-    #[test]
-    fn a_keypoint_on_a_step_straddles_it_and_one_on_a_slanted_plane_does_not() {
-        // A box edge: 1.2 m left of x = 20, 2.0 m right of it, a hole of no readings at
-        // x = 30..33 on the far side.
-        let (w, h) = (40u32, 12u32);
-        let step = image(w, h, |x, _| match x {
-            0..20 => 1.2,
-            30..33 => 0.0,
-            _ => 2.0,
-        });
-        let win = EdgeWindow::new(3, 0.05).unwrap();
-        for x in 17..=22 {
-            assert!(win.straddles(&step, x as f64, 6.0), "x = {x}");
-        }
-        // Rounded to the nearest pixel: 16.6 is pixel 17, whose reach crosses the step.
-        assert!(win.straddles(&step, 16.6, 6.0));
-        // Away from the step, in the hole (no reading) and beside it (the far side's pixel
-        // is missing: that axis tells nothing), near the border.
-        for x in [5.0, 16.4, 23.4, 26.0, 28.0, 31.0, 33.0, 38.0] {
-            assert!(!win.straddles(&step, x, 6.0), "x = {x}");
-        }
-        // Corners of the image: nothing is read out of bounds.
-        assert!(!win.straddles(&step, 0.0, 0.0));
-        assert!(!win.straddles(&step, 39.4, 11.4));
-        // A floor at a grazing angle (inverse depth affine in y, 0.8 m to 7.3 m): no edge.
-        let floor = image(w, 100, |_, y| 1.0 / (1.25 - 0.01125 * y as f32));
-        assert!((0..100).all(|y| !win.straddles(&floor, 20.0, y as f64)));
-        // Off, and a malformed image: no test, no panic.
-        assert!(EdgeWindow::new(3, 0.0).is_none() && EdgeWindow::new(0, 0.05).is_none());
-        let bad = DepthImage {
-            width: 40,
-            height: 12,
-            data: vec![1.0; 3],
-        };
-        assert!(!win.straddles(&bad, 20.0, 6.0));
     }
 }

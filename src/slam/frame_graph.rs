@@ -4,8 +4,7 @@
 //! frame's final pose as `A`'s corrected pose times that relative pose. Where the back end
 //! (pose graph, bundle adjustment) moves the next keyframe `B = A + 1` differently from the
 //! tracked motion between the two, the frames follow `A` and the whole discrepancy lands in
-//! the step into `B` (RPE across a keyframe switch; [`super::frame_blending`] spreads it
-//! evenly by time instead).
+//! the step into `B` (RPE across a keyframe switch).
 //!
 //! Here the frames `f₁ … fₙ` between `A` and `B` become the free nodes of a small pose graph:
 //! - `A → fₖ`: the frame's pose against `A` (its dense refinement against `A`'s depth, or its
@@ -164,7 +163,7 @@ fn place_span(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::slam::frame_blending::tests::{at, keyframe, record};
+    use crate::slam::fixtures::{at, keyframe, record};
     use crate::slam::map::Map;
 
     /// A straight move along x: keyframe A at 0, frames every 0.1 m, keyframe B at 0.4 m by

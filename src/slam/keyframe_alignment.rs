@@ -10,16 +10,14 @@
 //! The starting poses never change once made (tracking's odometry, the constraints' PnP), so
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
-use super::config::{DenseConfig, EdgeInformation, SlamConfig};
-use super::depth_alignment::{Alignment, DepthModel, align};
+use super::config::{DenseConfig, SlamConfig};
+use super::depth_alignment::{DepthModel, align};
 use super::map::{ConstraintKind, KeyFrame, Map};
-use super::pose_graph::{Edge, adjoint, information};
+use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
-use crate::raster::GrayF32;
-use nalgebra::{Matrix6, Vector6};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -95,55 +93,6 @@ fn aligned_depth(k: &KeyFrame) -> &DepthImage {
     k.view.unfiltered_depth.as_ref().unwrap_or(&k.view.depth)
 }
 
-/// An alignment's curvature `H` (left perturbation of `Z = T_i⁻¹ T_j`) in the pose graph's
-/// edge-error coordinates: `δ = Ad(Z) e` for `exp(δ) Z = Z exp(e)`, so `Ω = Ad(Z)ᵀ H Ad(Z)`.
-fn curvature_in_edge_coordinates(hessian: &Matrix6<f64>, z: &Pose) -> Matrix6<f64> {
-    let ad = adjoint(z);
-    ad.transpose() * hessian * ad
-}
-
-/// An edge's information from its alignment (`dense.edge_information`): the fixed
-/// standard deviations, or the ICP's curvature in the edge error's coordinates
-/// ([`curvature_in_edge_coordinates`]) with its translation and rotation rows and columns
-/// scaled so each diagonal block's determinant is that of the fixed information's. The
-/// curvature's own level (thousands of pairs whose errors are not independent) would trust
-/// an edge far too much; the scaling keeps the level the fixed sigmas were chosen at, and the
-/// curvature's anisotropy and couplings. The diagonal blocks are conditional information
-/// (each part with the other held), so where translation and rotation are coupled the
-/// marginal uncertainty is larger than the fixed sigmas'. The anisotropy is bounded only by
-/// the alignment's own degeneracy check (eigenvalues within 1e6 of each other). A block
-/// whose determinant is not positive keeps the fixed information.
-fn edge_information(found: &Alignment, is_loop: bool, d: &DenseConfig) -> Matrix6<f64> {
-    let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
-    let shaped = match d.edge_information {
-        EdgeInformation::Fixed => false,
-        EdgeInformation::Hessian => true,
-        EdgeInformation::Loops => is_loop,
-    };
-    if !shaped {
-        return fixed;
-    }
-    let omega = curvature_in_edge_coordinates(&found.hessian, &found.pose);
-    // Each block's geometric mean information (the inverse of the geometric mean of its
-    // conditional variances): the cube root of its determinant.
-    let level = |k: usize| omega.fixed_view::<3, 3>(k, k).determinant().cbrt();
-    let (t, r) = (level(0), level(3));
-    if !(t > 0.0 && r > 0.0 && t.is_finite() && r.is_finite()) {
-        return fixed;
-    }
-    let scale = Vector6::from_fn(|k, _| {
-        let (target, current) = if k < 3 {
-            (fixed[(0, 0)], t)
-        } else {
-            (fixed[(3, 3)], r)
-        };
-        (target / current).sqrt()
-    });
-    let s = Matrix6::from_diagonal(&scale);
-    let scaled = s * omega * s;
-    (scaled + scaled.transpose()) * 0.5
-}
-
 /// The edges of the keyframe alignments, in the pose graph's convention (`Z = T_i⁻¹ T_j`,
 /// `i < j`), ordered by `i`, then consecutive pairs before loop pairs.
 pub fn keyframe_edges(
@@ -161,46 +110,38 @@ pub fn keyframe_edges(
         return (Vec::new(), summary);
     }
     let range = (cfg.tracking.min_depth, cfg.tracking.max_depth);
+    // Every edge's information: the fixed standard deviations.
+    let information = information(d.sigma_translation, d.sigma_rotation_deg);
     let rays = Arc::new(RayTable::new(camera, first.view.stride));
     let groups: Vec<(usize, Vec<Pair>)> = pairs(map, cfg).into_iter().collect();
     summary.pairs = groups.iter().map(|(_, list)| list.len()).sum();
-    // With the photometric term, each keyframe's intensity once (a keyframe takes part in
-    // several pairs, on either side).
-    let intensities: Vec<GrayF32> = if d.photometric_sigma > 0.0 {
-        map.keyframes
-            .par_iter()
-            .map(|k| GrayF32::from_rgb(&k.view.rgb))
-            .collect()
-    } else {
-        Vec::new()
-    };
     // One model at a time per thread: a keyframe's model is built once and every keyframe
     // paired with it is aligned to it.
     let per_model: Vec<Vec<(Edge, f64, bool)>> = groups
         .par_iter()
         .map(|(i, list)| {
             let a = &map.keyframes[*i];
-            let Some(mut model) =
+            let Some(model) =
                 DepthModel::new(aligned_depth(a), camera, rays.clone(), d.model_step, range)
             else {
                 return Vec::new();
             };
-            if let Some(intensity) = intensities.get(*i) {
-                model = model.with_intensity(intensity);
-            }
             list.iter()
                 .filter_map(|p| {
                     let (j, initial, is_loop) = (p.later, p.start, p.is_loop);
                     let depth = aligned_depth(&map.keyframes[j]);
-                    let found = align(&model, depth, intensities.get(j), &initial, range, d)?;
+                    let found = align(&model, depth, &initial, range, d)?;
                     let moved = (initial.inverse() * found.pose).translation.vector.norm();
                     found.passes_edge_gates(&initial, d).then(|| {
                         let edge = Edge {
                             i: *i,
                             j,
                             measurement: found.pose,
-                            information: edge_information(&found, is_loop, d),
-                            robust: d.robust_edges,
+                            information,
+                            // Not the keypoint constraints' robust kernel: an edge passed
+                            // the gates above, and the kernel would let many slightly wrong
+                            // keypoint constraints outvote a precise edge.
+                            robust: false,
                         };
                         (edge, moved, is_loop)
                     })
@@ -259,7 +200,7 @@ impl PairAlignment {
         let (a, b) = (a.subsample(self.stride), b.subsample(self.stride));
         Ok(
             DepthModel::new(&a, c, self.rays.clone(), d.model_step, self.range)
-                .and_then(|model| align(&model, &b, None, initial, self.range, d))
+                .and_then(|model| align(&model, &b, initial, self.range, d))
                 .filter(|found| found.passes_edge_gates(initial, d))
                 .map(|found| found.pose),
         )
@@ -490,94 +431,5 @@ pub(crate) mod tests {
         let (map, _) = scene(&camera);
         let (_, summary) = keyframe_edges(&map, &camera, &config(1));
         assert_eq!(summary.pairs, 2);
-    }
-
-    /// A symmetric positive definite curvature with every translation-rotation coupling:
-    /// `L Lᵀ` for the lower triangle `L[r][c] = 1 + (a r + b c) mod m`.
-    fn coupled_curvature(a: usize, b: usize, m: f64) -> Matrix6<f64> {
-        let l = Matrix6::from_fn(|r, c| {
-            if r >= c {
-                1.0 + (r * a + c * b) as f64 % m
-            } else {
-                0.0
-            }
-        });
-        l * l.transpose()
-    }
-
-    /// The change of coordinates, checked by its meaning rather than its formula: for a
-    /// small edge error `e`, the same relative pose as a left perturbation `δ` of `Z`
-    /// (`exp(δ) = Z exp(e) Z⁻¹`) has `δᵀ H δ = eᵀ Ω e`.
-    #[test]
-    fn the_curvature_moves_into_the_edge_errors_coordinates() {
-        use crate::slam::pose_graph::{se3_exp, se3_log};
-        let z = Pose::from_parts(
-            Translation3::new(0.3, -0.2, 0.5),
-            UnitQuaternion::from_euler_angles(0.4, -0.3, 0.8),
-        );
-        let h = coupled_curvature(7, 3, 5.0);
-        let omega = curvature_in_edge_coordinates(&h, &z);
-        for k in 0..6 {
-            let e = Vector6::from_fn(|r, _| {
-                1e-4 * (1.0 + ((r + k) % 6) as f64) * if r % 2 == 0 { 1.0 } else { -1.0 }
-            });
-            let delta = se3_log(&(z * se3_exp(&e) * z.inverse()));
-            let (lhs, rhs) = (delta.dot(&(h * delta)), e.dot(&(omega * e)));
-            assert!((lhs - rhs).abs() < 1e-6 * lhs.abs(), "{lhs} against {rhs}");
-        }
-    }
-
-    /// Scaled blockwise: each diagonal block ends with the fixed information's determinant
-    /// whatever the curvature's level, and every correlation, translation-rotation couplings
-    /// included, is the curvature's; `fixed` ignores the curvature.
-    #[test]
-    fn hessian_information_keeps_the_curvatures_shape_at_the_fixed_level() {
-        let mut d = DenseConfig::default();
-        let fixed = information(d.sigma_translation, d.sigma_rotation_deg);
-        let z = Pose::from_parts(
-            Translation3::new(0.05, -0.02, 0.08),
-            UnitQuaternion::from_euler_angles(0.1, -0.05, 0.2),
-        );
-        let found = |scale: f64| Alignment {
-            pose: z,
-            inliers: 1000,
-            points: 1000,
-            rms: 0.001,
-            hessian: coupled_curvature(5, 2, 3.0) * scale,
-        };
-        assert_eq!(edge_information(&found(1.0), false, &d), fixed);
-        d.edge_information = EdgeInformation::Hessian;
-        let shape = curvature_in_edge_coordinates(&found(1.0).hessian, &z);
-        let correlation =
-            |m: &Matrix6<f64>, r: usize, c: usize| m[(r, c)] / (m[(r, r)] * m[(c, c)]).sqrt();
-        for scale in [1.0, 1e-3, 250.0] {
-            let omega = edge_information(&found(scale), false, &d);
-            for k in [0, 3] {
-                let det = omega.fixed_view::<3, 3>(k, k).determinant();
-                let want = fixed.fixed_view::<3, 3>(k, k).determinant();
-                assert!(
-                    (det / want - 1.0).abs() < 1e-9,
-                    "block {k}: {det} against {want}"
-                );
-            }
-            for r in 0..6 {
-                for c in 0..6 {
-                    let (a, b) = (correlation(&omega, r, c), correlation(&shape, r, c));
-                    assert!((a - b).abs() < 1e-9, "({r}, {c}): {a} against {b}");
-                }
-            }
-        }
-        // `loops`: shaped for loop pairs only.
-        let shaped = edge_information(&found(1.0), false, &d);
-        d.edge_information = EdgeInformation::Loops;
-        assert_eq!(edge_information(&found(1.0), true, &d), shaped);
-        assert_eq!(edge_information(&found(1.0), false, &d), fixed);
-        d.edge_information = EdgeInformation::Hessian;
-        // No curvature to shape it: the fixed information.
-        let flat = Alignment {
-            hessian: Matrix6::zeros(),
-            ..found(1.0)
-        };
-        assert_eq!(edge_information(&flat, false, &d), fixed);
     }
 }

@@ -5,7 +5,6 @@
 //! threads share it as [`SharedMap`].
 
 use super::config::TrackingConfig;
-use super::depth_edges::EdgeWindow;
 use super::keypoints::KeyFeatures;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
@@ -55,16 +54,13 @@ impl KeyframeFeatures {
 pub struct KeypointDepth {
     /// Readings outside `[min, max]` metres give none.
     pub range: (f64, f64),
-    /// With a test ([`EdgeWindow`]), neither does a reading on a depth discontinuity.
-    pub edge: Option<EdgeWindow>,
 }
 
 impl KeypointDepth {
-    /// `tracking.min_depth`, `max_depth` and the `keypoint_edge_*` test.
+    /// `tracking.min_depth` and `max_depth`.
     pub fn from_config(t: &TrackingConfig) -> Self {
         KeypointDepth {
             range: (t.min_depth, t.max_depth),
-            edge: EdgeWindow::new(t.keypoint_edge_reach, t.keypoint_edge_ratio),
         }
     }
 
@@ -72,9 +68,7 @@ impl KeypointDepth {
     pub fn at(&self, depth: &DepthImage, x: f64, y: f64) -> Option<f32> {
         let d = depth.at(x, y)?;
         let (min, max) = self.range;
-        ((d as f64) >= min && (d as f64) <= max)
-            .then_some(d)
-            .filter(|_| !self.edge.is_some_and(|e| e.straddles(depth, x, y)))
+        ((d as f64) >= min && (d as f64) <= max).then_some(d)
     }
 }
 
@@ -285,7 +279,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn keypoints_on_a_depth_step_get_no_point_when_the_edge_test_is_on() {
+    fn keypoints_take_the_readings_within_the_depth_range() {
         let camera = Camera::pinhole(640, 480, 525.0, 525.0, 319.5, 239.5);
         let (w, h) = (camera.width, camera.height);
         // A box side at 1.2 m left of column 320, the wall at 2.4 m right of it.
@@ -294,29 +288,18 @@ mod tests {
             *d = if (i as u32 % w) < 320 { 1.2 } else { 2.4 };
         }
         let features = KeyFeatures {
-            points: vec![
-                [100.0, 200.0],
-                [319.4, 200.0],
-                [321.0, 240.0],
-                [500.0, 100.0],
-            ],
-            descriptors: vec![0.0; 4],
+            points: vec![[100.0, 200.0], [500.0, 100.0]],
+            descriptors: vec![0.0; 2],
             dim: 1,
         };
         let mut gate = KeypointDepth::from_config(&TrackingConfig::default());
-        assert_eq!(gate.edge, None, "off by default");
         let all = points_from_depth(&features, Some(&depth), &camera, gate);
         assert!(all.iter().all(|p| p.is_some()));
-        gate.edge = EdgeWindow::new(3, 0.05);
-        let kept = points_from_depth(&features, Some(&depth), &camera, gate);
-        let some: Vec<bool> = kept.iter().map(|p| p.is_some()).collect();
-        assert_eq!(some, [true, false, false, true]);
-        assert_eq!(kept[0], all[0]);
-        assert_eq!(kept[3], all[3]);
-        // The depth range still applies, and no depth image gives no points.
+        let p = all[0].unwrap();
+        assert!((p.z - 1.2).abs() < 1e-6, "{p:?}");
         gate.range = (0.1, 2.0);
         let near = points_from_depth(&features, Some(&depth), &camera, gate);
-        assert!(near[0].is_some() && near[3].is_none());
+        assert!(near[0].is_some() && near[1].is_none());
         assert!(
             points_from_depth(&features, None, &camera, gate)
                 .iter()

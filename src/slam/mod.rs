@@ -23,10 +23,9 @@ pub mod config;
 pub mod correction;
 pub mod depth_alignment;
 pub mod depth_edges;
-pub mod depth_sync;
-pub mod epipolar_rotation;
 pub mod evaluation;
-pub mod frame_blending;
+#[cfg(test)]
+pub(crate) mod fixtures;
 pub mod frame_graph;
 pub mod keyframe_alignment;
 pub mod keypoints;
@@ -45,7 +44,6 @@ pub mod semantic_source;
 pub mod system;
 pub mod topdown;
 pub mod tracking;
-pub mod tsdf;
 
 pub use config::SlamConfig;
 pub use keypoints::{FpfdcnnSource, KeyFeatures, KeypointSource, OrbSource};

@@ -4,12 +4,9 @@
 //! the 7-Scenes kitchen (frames 222-799 of `7scenes_redkitchen_0_799`) one frame in four to
 //! six repeats the one before: 63 frames both images (the ground truth then stands nearly
 //! still), 23 only the colour and 24 only the depth. Those 47 frames' colour and depth show
-//! two different instants, about a centimetre apart at that camera's speed. A keyframe made
-//! there pairs its keypoints with depth from the other instant; with
-//! `keyframes.skip_mismatched` [`super::tracking`] makes none there and the next frame
-//! decides instead (off by default: lab/notes/slam-results.md, *Repeated images and jumps in
-//! 7-Scenes' ground truth*). The run's report counts the repeats. They are found by content:
-//! a 64-bit hash of each decoded image, compared with the previous frame's.
+//! two different instants, about a centimetre apart at that camera's speed. The run's report
+//! counts the repeats. They are found by content: a 64-bit hash of each decoded image,
+//! compared with the previous frame's.
 
 use crate::dataset::DepthImage;
 use image::RgbImage;
@@ -74,13 +71,6 @@ pub struct Repeats {
     pub colour: bool,
     /// `None` unless both frames have depth.
     pub depth: Option<bool>,
-}
-
-impl Repeats {
-    /// Exactly one of colour and depth repeats: the two images show different instants.
-    pub fn mismatched(&self) -> bool {
-        self.depth.is_some_and(|d| d != self.colour)
-    }
 }
 
 /// Frames of a run by what they repeat, for the report.
@@ -148,7 +138,6 @@ mod tests {
                 depth: Some(true)
             }
         );
-        assert!(!both.mismatched());
         let depth_only = new_colour.repeats(Some(&a));
         assert_eq!(
             depth_only,
@@ -157,9 +146,14 @@ mod tests {
                 depth: Some(true)
             }
         );
-        assert!(depth_only.mismatched());
         let colour_only = new_depth.repeats(Some(&a));
-        assert!(colour_only.colour && colour_only.mismatched());
+        assert_eq!(
+            colour_only,
+            Repeats {
+                colour: true,
+                depth: Some(false)
+            }
+        );
         // A changed pixel anywhere is a new image.
         let mut d = depth(1.0);
         d.data[11] = 1.001;
@@ -171,7 +165,7 @@ mod tests {
                 depth: Some(false)
             }
         );
-        // Nothing before it, or no depth on one side: nothing mismatched.
+        // Nothing before it, or no depth on one side.
         assert_eq!(a.repeats(None), Repeats::default());
         let mono = ImageKeys::new(&rgb(1), None);
         let r = mono.repeats(Some(&a));
@@ -182,7 +176,6 @@ mod tests {
                 depth: None
             }
         );
-        assert!(!r.mismatched());
     }
 
     #[test]

@@ -97,12 +97,6 @@ pub struct TrackingReport {
     pub dense_kept: usize,
     #[serde(default)]
     pub dense_rejected: usize,
-    /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
-    #[serde(default)]
-    pub fused_kept: usize,
-    /// `tracking.sync_depth`: frames whose depth was re-registered to its colour instant.
-    #[serde(default)]
-    pub depth_synced: usize,
     /// `tracking.colour_instant`: frames whose pose was moved from their depth image's
     /// instant to their colour image's.
     #[serde(default)]
@@ -228,8 +222,6 @@ impl Report {
                 reinitialised_frames: t.reinitialised.clone(),
                 dense_kept: t.dense_kept,
                 dense_rejected: t.dense_rejected,
-                fused_kept: t.fused_kept,
-                depth_synced: t.depth_synced,
                 colour_instant: out.colour_instant,
             },
             wall_seconds: out.wall_seconds,
@@ -325,13 +317,6 @@ impl Report {
                 s,
                 "| dense refinement | kept for {} frames, not kept for {} |",
                 self.tracking.dense_kept, self.tracking.dense_rejected
-            );
-        }
-        if self.tracking.depth_synced > 0 {
-            let _ = writeln!(
-                s,
-                "| depth moved to the colour instant | {} frames |",
-                self.tracking.depth_synced
             );
         }
         if self.tracking.colour_instant > 0 {
@@ -580,15 +565,8 @@ impl Report {
         if self.tracking.dense_kept + self.tracking.dense_rejected > 0 {
             let _ = writeln!(
                 s,
-                "dense refinement kept for {} frames ({} against the fused surface), not kept for {}",
-                self.tracking.dense_kept, self.tracking.fused_kept, self.tracking.dense_rejected
-            );
-        }
-        if self.tracking.depth_synced > 0 {
-            let _ = writeln!(
-                s,
-                "depth moved to its colour image's instant on {} frames",
-                self.tracking.depth_synced
+                "dense refinement kept for {} frames, not kept for {}",
+                self.tracking.dense_kept, self.tracking.dense_rejected
             );
         }
         if self.tracking.colour_instant > 0 {

@@ -10,7 +10,6 @@ use super::bundle_adjustment::{BaSummary, refine_frames};
 use super::colour_instant::move_to_colour_instants;
 use super::config::{CorrectionConfig, SlamConfig};
 use super::correction::{CorrectionStats, Corrector, LocalSummary, local_correction};
-use super::frame_blending::blend_frames;
 use super::frame_graph::place_frames;
 use super::keyframe_alignment::{KeyframeAlignmentSummary, keyframe_edges};
 use super::keypoints::KeypointSource;
@@ -250,8 +249,6 @@ impl SlamOutput {
 struct Loaded {
     rgb: RgbImage,
     depth: Option<DepthImage>,
-    /// The depth image's stamp minus the colour image's, seconds.
-    depth_offset: f64,
     stamp: f64,
     gt: Option<Pose>,
     keys: ImageKeys,
@@ -265,21 +262,15 @@ fn load(seq: &TumSequence, i: usize, monocular: bool) -> Result<Loaded> {
             keys: ImageKeys::new(&rgb, None),
             rgb,
             depth: None,
-            depth_offset: 0.0,
             stamp,
             gt: seq.gt_pose_at(stamp),
         })
     } else {
         let f = seq.load_frame(i)?;
-        let depth_offset = match &f.depth {
-            Some(_) => seq.frames[i].depth_offset(),
-            None => 0.0,
-        };
         Ok(Loaded {
             keys: ImageKeys::new(&f.rgb, f.depth.as_ref()),
             rgb: f.rgb,
             depth: f.depth,
-            depth_offset,
             stamp: f.stamp,
             gt: f.gt_pose,
         })
@@ -393,9 +384,7 @@ fn tracking_loop(
             stamp: frame.stamp,
             features,
             depth: frame.depth.as_ref(),
-            depth_offset: frame.depth_offset,
             gt_pose: frame.gt,
-            repeats,
         });
         run.tracking.add(t);
         for e in &out.events {
@@ -406,7 +395,7 @@ fn tracking_loop(
             let reply = on_keyframe(MapperInput {
                 keyframe: kf,
                 rgb: frame.rgb,
-                depth: out.depth.or(frame.depth),
+                depth: frame.depth,
             });
             if let Some(track) = reply {
                 tracker.update_keyframe(id, track);
@@ -595,9 +584,6 @@ impl Slam {
                     summary
                 });
         let (local, landmarks) = local_correction(&mut write(&map), &config, monocular);
-        if config.correction.blend_frames {
-            blend_frames(&read(&map), &mut run.frames);
-        }
         if config.dense.frame_graph && !monocular {
             let started = Instant::now();
             let placed = place_frames(&read(&map), &mut run.frames, &config.dense);
@@ -611,7 +597,7 @@ impl Slam {
             ));
         }
         let mut colour_instant = 0;
-        if config.tracking.colour_instant && !config.tracking.sync_depth && !monocular {
+        if config.tracking.colour_instant && !monocular {
             let depth_offset = |i: usize| sequence.frames[i].depth_offset();
             colour_instant = move_to_colour_instants(&read(&map), &mut run.frames, depth_offset);
             (control.log)(&format!(

@@ -15,13 +15,10 @@
 //! trajectory composes each frame's pose relative to its reference keyframe with
 //! that keyframe's corrected pose, as ORB-SLAM3 writes its trajectories.
 
-use super::config::{DenseConfig, LOCAL_CANDIDATES, SlamConfig};
+use super::config::{DenseConfig, SlamConfig};
 use super::depth_alignment::{DepthModel, align};
-use super::depth_sync;
 use super::keypoints::{KeyFeatures, similarity};
 use super::map::{KeyframeFeatures, KeypointDepth, Map, ViewBounds, points_from_depth};
-use super::repeated_images::Repeats;
-use super::tsdf::{Tsdf, TsdfParams};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
@@ -116,11 +113,7 @@ pub struct TrackInput<'a> {
     pub features: KeyFeatures,
     /// Sensor depth (RGB-D mode only).
     pub depth: Option<&'a DepthImage>,
-    /// The depth image's stamp minus the colour image's, seconds (0 when equal or unknown).
-    pub depth_offset: f64,
     pub gt_pose: Option<Pose>,
-    /// Which of the frame's images repeat the previous frame's.
-    pub repeats: Repeats,
 }
 
 /// Result of [`Tracker::track`].
@@ -130,9 +123,6 @@ pub struct TrackOutput {
     pub keyframe: Option<NewKeyframe>,
     /// What happened, for the log (lost, relocalised, restarted).
     pub events: Vec<String>,
-    /// `tracking.sync_depth`: the frame's depth re-registered to its colour image's instant,
-    /// when it was; tracking used it, and the mapping stage takes it in place of the sensor's.
-    pub depth: Option<DepthImage>,
 }
 
 struct TrackedKeyframe {
@@ -143,7 +133,6 @@ struct TrackedKeyframe {
 
 struct LastFrame {
     index: usize,
-    stamp: f64,
     pose: Pose,
     features: KeyFeatures,
     world: Vec<Option<Point3<f64>>>,
@@ -206,13 +195,6 @@ pub struct TrackingCounters {
     /// ... and frames where it ran but did not agree with the keypoints or failed.
     #[serde(default)]
     pub dense_rejected: usize,
-    /// `dense.fused_model`: of the frames kept, those refined against the fused surface.
-    #[serde(default)]
-    pub fused_kept: usize,
-    /// `tracking.sync_depth`: frames whose depth was re-registered to its colour image's
-    /// instant.
-    #[serde(default)]
-    pub depth_synced: usize,
     /// `dense.frame_graph`: frames whose alignment to the previous frame was kept.
     #[serde(default)]
     pub frame_steps: usize,
@@ -227,9 +209,6 @@ pub struct TrackingCounters {
 /// slowed ORB's tracking below its target (lab/notes/slam-results.md, "Frames placed by frame-to-frame depth").
 const FRAME_MODEL_STEP: usize = 4;
 const FRAME_ITERATIONS: usize = 3;
-
-/// `dense.fused_model`: the fused surface is seen and fused at every this many pixels.
-const FUSED_STRIDE: u32 = 2;
 
 /// The tracking stage.
 pub struct Tracker {
@@ -251,9 +230,6 @@ pub struct Tracker {
     step_alignment: DenseConfig,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
-    /// `dense.fused_model`: the surface fused from the tracked frames, and the rays of every
-    /// [`FUSED_STRIDE`]-th pixel it is seen and fused at.
-    fused: Option<(Tsdf, Arc<RayTable>)>,
     pub counters: TrackingCounters,
 }
 
@@ -277,7 +253,6 @@ impl Tracker {
             dense_model: None,
             frame_model: None,
             rays: None,
-            fused: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -318,12 +293,10 @@ impl Tracker {
 
     /// Tracks one frame.
     pub fn track(&mut self, input: TrackInput<'_>) -> TrackOutput {
-        let sensor_depth = input.depth;
+        let depth = input.depth;
         let mut out = self.track_frame(input);
         if self.cfg.dense.frame_graph && !self.monocular {
-            // The depth tracking used: re-registered to the colour image's instant, or the
-            // sensor's.
-            self.frame_step(&mut out.record, out.depth.as_ref().or(sensor_depth));
+            self.frame_step(&mut out.record, depth);
         }
         out
     }
@@ -340,7 +313,7 @@ impl Tracker {
         let range = self.depth_range();
         if let Some((index, pose, model)) = previous {
             let initial = pose.inverse() * record.odom_pose;
-            let kept = align(&model, depth, None, &initial, range, &self.step_alignment)
+            let kept = align(&model, depth, &initial, range, &self.step_alignment)
                 .filter(|a| a.passes_frame_gates(&initial, &self.cfg.dense))
                 .map(|a| renormalized(&a.pose));
             self.counters.frame_steps += kept.is_some() as usize;
@@ -359,12 +332,10 @@ impl Tracker {
         let Some(reference) = self.reference else {
             return self.start(input, None, FrameStatus::Initialised, events);
         };
-        let (last_pose, last_index, last_stamp) = match &self.last {
-            Some(l) => (l.pose, l.index, Some(l.stamp)),
-            None => (self.keyframes[reference].pose, input.index, None),
+        let (last_pose, last_index) = match &self.last {
+            Some(l) => (l.pose, l.index),
+            None => (self.keyframes[reference].pose, input.index),
         };
-        // The last frame's pose was tracked, not guessed (a lost frame keeps a prediction).
-        let last_tracked = self.lost_streak == 0;
         // Constant velocity, scaled by the frame gap (skipped frames).
         let gap = input.index.saturating_sub(last_index).max(1);
         let mut predicted = last_pose;
@@ -403,37 +374,10 @@ impl Tracker {
         self.lost_streak = 0;
         self.reference = Some(reference_now);
         let mut pose = result.pose.inverse();
-        if self.monocular
-            && self.cfg.tracking.epipolar_rotation
-            && let Some(p) = self.epipolar_pose(&result, &corr, reference_now, &pose)
-        {
-            pose = p;
-        }
-        // `tracking.sync_depth`: from here on the frame's depth is the one seen at its colour
-        // image's instant, by this frame's motion since the last.
-        // Only between two tracked frames: after a loss or a relocalisation the step holds a
-        // correction, not the camera's motion.
-        let synced = last_stamp
-            .filter(|_| last_tracked && status == FrameStatus::Tracked)
-            .and_then(|t| self.sync_depth(&input, &last_pose, t, &pose));
-        let input = TrackInput {
-            depth: synced.as_ref().or(input.depth),
-            ..input
-        };
         let mut dense = false;
-        // `dense.fused_model`: the frame's depth at the fused surface's resolution, made once
-        // for refining against the surface and fusing into it.
-        let fused_depth = self.fused_depth(&input);
-        if let Some(refined) = fused_depth
-            .as_ref()
-            .and_then(|d| self.refine_fused(d, &pose))
-            .or_else(|| self.refine_dense(&input, reference_now, &pose))
-        {
+        if let Some(refined) = self.refine_dense(&input, reference_now, &pose) {
             pose = refined;
             dense = true;
-        }
-        if let Some(d) = &fused_depth {
-            self.fuse(d, &pose);
         }
         // The PnP inliers against the reference keyframe: they decide on a new keyframe
         // and, kept in the frame's record, refine it after bundle adjustment.
@@ -481,12 +425,10 @@ impl Tracker {
             || since.rotation.angle().to_degrees() > rules.max_rotation_deg
             || (rules.max_frames > 0 && frames_since >= rules.max_frames);
         let can = self.monocular || input.depth.is_some();
-        let mismatched = rules.skip_mismatched && input.repeats.mismatched();
-        if wants_keyframe && can && !mismatched {
+        if wants_keyframe && can {
             let mut out = self.start(input, Some(pose), status, events);
             out.record.inliers = inliers;
             out.record.correspondences = corr.world.len();
-            out.depth = synced;
             return out;
         }
         let record = FrameRecord {
@@ -505,7 +447,6 @@ impl Tracker {
         };
         self.last = Some(LastFrame {
             index: input.index,
-            stamp: input.stamp,
             pose,
             features: input.features,
             world,
@@ -514,7 +455,6 @@ impl Tracker {
             record,
             keyframe: None,
             events,
-            depth: synced,
         }
     }
 
@@ -558,20 +498,9 @@ impl Tracker {
                 },
                 keyframe: None,
                 events,
-                depth: None,
             };
         }
         let depth = if self.monocular { None } else { input.depth };
-        if status == FrameStatus::Lost {
-            // A restart at a guessed pose: the surface fused so far may not be where the new
-            // keyframe thinks; start it again from here.
-            self.fused = None;
-        }
-        if (first || status == FrameStatus::Lost)
-            && let Some(d) = self.fused_depth(&input)
-        {
-            self.fuse(&d, &pose);
-        }
         let id = self.keyframes.len();
         self.dense_model = None;
         if let Some(d) = depth.filter(|_| self.cfg.dense.enabled) {
@@ -627,7 +556,6 @@ impl Tracker {
         };
         self.last = Some(LastFrame {
             index: input.index,
-            stamp: input.stamp,
             pose,
             features: input.features,
             world,
@@ -643,7 +571,6 @@ impl Tracker {
                 track: data,
             }),
             events,
-            depth: None,
         }
     }
 
@@ -666,7 +593,7 @@ impl Tracker {
         }
         let kf_pose = self.keyframes[reference].pose;
         let initial = kf_pose.inverse() * pose;
-        let kept = align(model, depth, None, &initial, self.depth_range(), cfg)
+        let kept = align(model, depth, &initial, self.depth_range(), cfg)
             .filter(|a| a.passes_frame_gates(&initial, cfg))
             .map(|a| a.pose);
         match kept {
@@ -679,86 +606,6 @@ impl Tracker {
                 None
             }
         }
-    }
-
-    /// `tracking.sync_depth` (RGB-D): the frame's depth re-registered to its colour image's
-    /// instant, the camera's motion over the stamps' offset taken from this frame's step since
-    /// the last (`last_pose` at `last_stamp` to `pose`); `None` when it is off, the offset is
-    /// too short to matter or the motion cannot be extrapolated.
-    fn sync_depth(
-        &mut self,
-        input: &TrackInput<'_>,
-        last_pose: &Pose,
-        last_stamp: f64,
-        pose: &Pose,
-    ) -> Option<DepthImage> {
-        let depth = input.depth.filter(|_| self.cfg.tracking.sync_depth)?;
-        let step = last_pose.inverse() * pose;
-        let motion = depth_sync::motion_over(&step, input.stamp - last_stamp, input.depth_offset)?;
-        let camera = &self.camera;
-        let rays = self
-            .rays
-            .get_or_insert_with(|| Arc::new(RayTable::new(camera, 1)));
-        let synced = depth_sync::register(depth, camera, rays, &motion);
-        self.counters.depth_synced += synced.is_some() as usize;
-        synced
-    }
-
-    /// `dense.fused_model`: `pose` (world from frame, from the keypoints) refined against the
-    /// fused surface seen from it, with the same gates as [`Self::refine_dense`]; `None` when
-    /// off, before anything is fused, or when the alignment fails or disagrees.
-    fn refine_fused(&mut self, frame: &DepthImage, pose: &Pose) -> Option<Pose> {
-        let cfg = &self.cfg.dense;
-        let (tsdf, rays) = self.fused.as_ref()?;
-        let range = self.depth_range();
-        let max_distance = cfg
-            .levels
-            .iter()
-            .map(|l| l.max_distance)
-            .fold(0.0, f64::max);
-        let seen = tsdf.raycast(pose, rays, frame, range, max_distance, 1.0);
-        let model = DepthModel::new(&seen, &self.camera, rays.clone(), 1, range)?;
-        let refined = align(&model, frame, None, &Pose::identity(), range, cfg)
-            .filter(|a| a.passes_frame_gates(&Pose::identity(), cfg))
-            .map(|a| a.pose)?;
-        self.counters.dense_kept += 1;
-        self.counters.fused_kept += 1;
-        Some(renormalized(&(pose * refined)))
-    }
-
-    /// `dense.fused_model` (RGB-D, dense refinement on): the frame's depth every
-    /// [`FUSED_STRIDE`]-th pixel; `None` otherwise.
-    fn fused_depth(&self, input: &TrackInput<'_>) -> Option<DepthImage> {
-        let cfg = &self.cfg.dense;
-        input
-            .depth
-            .filter(|_| cfg.enabled && cfg.fused_model && !self.monocular)
-            .map(|d| d.subsample(FUSED_STRIDE))
-    }
-
-    /// `dense.fused_model`: fuses `frame` ([`Self::fused_depth`]) at `pose` (world from
-    /// frame).
-    fn fuse(&mut self, frame: &DepthImage, pose: &Pose) {
-        let cfg = &self.cfg.dense;
-        let range = self.depth_range();
-        let (tsdf, rays) = self.fused.get_or_insert_with(|| {
-            let params = TsdfParams {
-                voxel: cfg.fused_voxel,
-                truncation: cfg.fused_truncation,
-                max_weight: 64.0,
-                max_blocks: cfg.fused_max_blocks,
-            };
-            (
-                Tsdf::new(params),
-                Arc::new(RayTable::new(&self.camera, FUSED_STRIDE)),
-            )
-        });
-        // Depth samples that allocate blocks at most a block apart at the farthest depth, so
-        // that no block between them is missed.
-        let block = 8.0 * cfg.fused_voxel;
-        let spacing = f64::from(rays.stride) * range.1 / self.camera.fx.max(1.0);
-        let step = ((block / spacing) as usize).clamp(1, 16);
-        tsdf.integrate(frame, rays, &self.camera, pose, range, step);
     }
 
     fn lost(
@@ -791,13 +638,11 @@ impl Tracker {
         if let Some(last) = &mut self.last {
             last.pose = predicted;
             last.index = input.index;
-            last.stamp = input.stamp;
         }
         TrackOutput {
             record,
             keyframe: None,
             events,
-            depth: None,
         }
     }
 
@@ -833,59 +678,10 @@ impl Tracker {
                 reference: false,
             });
         }
-        let local: Vec<(usize, Vec<Option<Point3<f64>>>)> = self
-            .local_keyframes(reference, predicted)
-            .into_iter()
-            .map(|k| {
-                let kf = &self.keyframes[k];
-                let world = kf.data.points_cam.iter().map(|p| p.map(|p| kf.pose * p));
-                (k, world.collect())
-            })
-            .collect();
-        for (k, world) in &local {
-            sources.push(Source {
-                features: &self.keyframes[*k].data.features,
-                world,
-                reference: false,
-            });
-        }
         let guide = self.cfg.matcher.predict_window.then_some(predicted);
         let corr = self.correspond(&sources, current, guide, &self.cfg.matcher.range());
         let result = self.pnp(&corr, Some(predicted))?;
         Some((result, corr))
-    }
-
-    /// The local map's other keyframes to match against: of the last
-    /// [`LOCAL_CANDIDATES`] keyframes but `reference`, the `tracking.local_keyframes`
-    /// with the most 3D points inside the view of the `predicted` camera-to-world pose (at
-    /// least a tenth of the reference keyframe's, so a keyframe seen barely adds nothing
-    /// but false matches).
-    fn local_keyframes(&self, reference: usize, predicted: &Pose) -> Vec<usize> {
-        let wanted = self.cfg.tracking.local_keyframes;
-        if wanted == 0 {
-            return Vec::new();
-        }
-        let world_to_cam = predicted.inverse();
-        let bounds = ViewBounds::new(&self.camera);
-        let visible = |k: usize| {
-            let kf = &self.keyframes[k];
-            let to_cam = world_to_cam * kf.pose;
-            kf.data
-                .points_cam
-                .iter()
-                .flatten()
-                .filter(|p| bounds.contains(&(to_cam * *p)))
-                .count()
-        };
-        let floor = (visible(reference) / 10).max(self.cfg.pnp.min_inliers);
-        let first = self.keyframes.len().saturating_sub(LOCAL_CANDIDATES);
-        let mut seen: Vec<(usize, usize)> = (first..self.keyframes.len())
-            .filter(|&k| k != reference)
-            .map(|k| (visible(k), k))
-            .filter(|&(n, _)| n >= floor)
-            .collect();
-        seen.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.cmp(&a.1)));
-        seen.into_iter().take(wanted).map(|(_, k)| k).collect()
     }
 
     /// Relocalisation: the reference keyframe, then those with the most similar
@@ -936,81 +732,6 @@ impl Tracker {
             }
         }
         best
-    }
-
-    /// `tracking.epipolar_rotation` (monocular): the frame's rotation relative to keyframe
-    /// `reference` refined on the bearings of the PnP inliers matched to it, then its
-    /// translation refitted to every inlier's point with that rotation held. `None` (keep
-    /// PnP's pose) when no inlier is matched to the keyframe, the baseline is too short for a
-    /// direction, too few pairs remain, the refined rotation lies more than 5 degrees from
-    /// PnP's, or the translation does not refit.
-    fn epipolar_pose(
-        &self,
-        result: &PnpResult,
-        corr: &Correspondences,
-        reference: usize,
-        pose: &Pose,
-    ) -> Option<Pose> {
-        use super::epipolar_rotation::{
-            EpipolarParams, bearing, camera_to_world, refine_relative_rotation, refit_translation,
-        };
-        let kf_to_world = self.keyframes[reference].pose;
-        let world_to_kf = kf_to_world.inverse();
-        let world_to_frame = pose.inverse();
-        let relative = world_to_frame * kf_to_world;
-        let inliers: Vec<usize> = (0..corr.world.len())
-            .filter(|&k| result.inliers[k])
-            .collect();
-        // The reference keyframe's inliers: bearing in the keyframe (its point's direction, not
-        // its predicted depth) and in the frame; their depths set the least baseline.
-        let (pairs, mut depths): (Vec<_>, Vec<f64>) = inliers
-            .iter()
-            .filter(|&&k| corr.from_reference[k])
-            .map(|&k| {
-                let in_kf = world_to_kf * corr.world[k];
-                let pair = (
-                    in_kf.coords.normalize(),
-                    bearing(&self.camera, &corr.pixels[k]),
-                );
-                (pair, in_kf.z)
-            })
-            .unzip();
-        depths.sort_by(f64::total_cmp);
-        let median = *depths.get(depths.len() / 2)?;
-        let baseline = relative.translation.vector.norm();
-        if baseline.is_nan() || baseline < self.cfg.tracking.epipolar_min_parallax * median {
-            return None;
-        }
-        let start = relative.rotation.to_rotation_matrix();
-        let (rotation, _) = refine_relative_rotation(
-            &pairs,
-            &start,
-            &relative.translation.vector,
-            &EpipolarParams {
-                // About 1.5 px at the camera's focal length.
-                scale: 1.5 / self.camera.fx.max(1.0),
-                ..EpipolarParams::default()
-            },
-        )?;
-        if (start.inverse() * rotation).angle().to_degrees() > 5.0 {
-            return None;
-        }
-        let rotation_w = rotation * world_to_kf.rotation.to_rotation_matrix();
-        let world: Vec<Point3<f64>> = inliers.iter().map(|&k| corr.world[k]).collect();
-        let observed: Vec<_> = inliers
-            .iter()
-            .map(|&k| self.camera.normalized(&corr.pixels[k]))
-            .collect();
-        let huber = 2.0 / self.camera.fx.max(1.0);
-        let t = refit_translation(
-            &world,
-            &observed,
-            &rotation_w,
-            &world_to_frame.translation.vector,
-            huber,
-            10,
-        )?;
-        Some(camera_to_world(&rotation_w, &t))
     }
 
     fn pnp(&self, corr: &Correspondences, predicted: Option<&Pose>) -> Option<PnpResult> {

@@ -50,8 +50,6 @@ pub struct FeatureConfig {
     pub fpfdcnn_border: usize,
     /// FPFDCNN: image resize factor before the network (0.5 for weights trained at 240x320).
     pub fpfdcnn_input_scale: f32,
-    /// FPFDCNN: refine keypoints to the image corner within this radius, pixels (0: off).
-    pub fpfdcnn_subpixel_radius: usize,
     /// FPFDCNN: average the FP map over 1, 2 or 4 placements of the 16x16 cell grid (each
     /// a full network pass).
     pub fpfdcnn_grid_shifts: usize,
@@ -82,7 +80,6 @@ impl Default for FeatureConfig {
             orb_levels: 8,
             orb_scale_factor: 1.2,
             fpfdcnn_input_scale: 1.0,
-            fpfdcnn_subpixel_radius: 0,
             fpfdcnn_grid_shifts: 1,
             fpfdcnn_descriptor_spread: crate::fpfdcnn::inference::DEFAULT_DESCRIPTOR_SPREAD,
         }
@@ -98,7 +95,6 @@ impl FeatureConfig {
             top_k: self.top_k,
             border: self.fpfdcnn_border,
             input_scale: self.fpfdcnn_input_scale,
-            subpixel_radius: self.fpfdcnn_subpixel_radius,
             grid_shifts: self.fpfdcnn_grid_shifts,
             descriptor_spread: self.fpfdcnn_descriptor_spread,
             ..DetectorConfig::default()
@@ -217,20 +213,12 @@ impl PnpSettings {
     }
 }
 
-/// How many of the most recent keyframes [`TrackingConfig::local_keyframes`] chooses from.
-pub const LOCAL_CANDIDATES: usize = 20;
-
 /// Frame tracking (section IV-B).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrackingConfig {
     /// Also match against the previous frame (not only the reference keyframe).
     pub match_previous_frame: bool,
-    /// Also match against this many other keyframes of the local map: of the last
-    /// [`LOCAL_CANDIDATES`] keyframes, those with the most 3D points inside the predicted
-    /// view (ORB-SLAM's tracking against the local map, section IV-B's reference keyframe
-    /// extended). 0: the reference keyframe (and previous frame) only.
-    pub local_keyframes: usize,
     /// Depth readings outside `[min_depth, max_depth]` metres give no 3D point.
     pub min_depth: f64,
     pub max_depth: f64,
@@ -242,46 +230,22 @@ pub struct TrackingConfig {
     /// Start at the ground-truth pose of the first frame when the sequence has
     /// one (otherwise the identity), so that unaligned errors mean something.
     pub start_at_ground_truth: bool,
-    /// RGB-D mode: re-register each depth image to its colour image's instant by the camera's
-    /// motion between the two stamps, at the frame's own velocity
-    /// ([`crate::slam::depth_sync`]; TUM's Kinect streams are not synchronised).
-    pub sync_depth: bool,
     /// RGB-D mode: after the back end, move each frame's pose from its depth image's instant
     /// to its colour image's (the trajectory's stamps), along the trajectory
-    /// ([`crate::slam::colour_instant`]); frames whose stamps are equal do not move. Off with
-    /// `sync_depth`, whose depth is already the colour instant's.
+    /// ([`crate::slam::colour_instant`]); frames whose stamps are equal do not move.
     pub colour_instant: bool,
-    /// A keypoint whose depth reading lies on a depth discontinuity, by the test of
-    /// [`crate::slam::depth_edges`] over `keypoint_edge_reach` pixels, gets no 3D point
-    /// (neither as a keyframe's point nor as a frame's depth observation; a ratio or a reach
-    /// of 0: off).
-    pub keypoint_edge_ratio: f32,
-    pub keypoint_edge_reach: u32,
-    /// Monocular mode: each tracked frame's rotation relative to its reference keyframe
-    /// refined on the matches' bearings alone (epipolar geometry, no predicted depth), then
-    /// its translation refitted to the keyframe's points with that rotation held
-    /// ([`crate::slam::epipolar_rotation`]); only where the baseline is at least
-    /// `epipolar_min_parallax` of the points' median depth.
-    pub epipolar_rotation: bool,
-    pub epipolar_min_parallax: f64,
 }
 
 impl Default for TrackingConfig {
     fn default() -> Self {
         TrackingConfig {
             match_previous_frame: true,
-            local_keyframes: 0,
             min_depth: 0.1,
             max_depth: 6.0,
             relocalisation_candidates: 5,
             reinitialise_after: 10,
             start_at_ground_truth: true,
-            sync_depth: false,
             colour_instant: true,
-            keypoint_edge_ratio: 0.0,
-            keypoint_edge_reach: 3,
-            epipolar_rotation: false,
-            epipolar_min_parallax: 0.01,
         }
     }
 }
@@ -335,43 +299,17 @@ pub struct DenseConfig {
     /// slipped, which is where its alignment matters most.
     pub edge_agree_translation: f64,
     pub edge_agree_rotation_deg: f64,
-    /// Whether the pose graph's and bundle adjustment's robust kernel (`correction.
-    /// robust_kernel`) applies to keyframe edges as to keypoint constraints. Off: an edge
-    /// passed the gates above, and the kernel would let many slightly wrong keypoint
-    /// constraints outvote a precise edge.
-    pub robust_edges: bool,
     /// Standard deviations of a keyframe edge (a relative pose from the ICP), metres and
     /// degrees.
     pub sigma_translation: f64,
     pub sigma_rotation_deg: f64,
-    /// How a keyframe edge's information is shaped: `fixed`, those standard deviations in
-    /// every direction; `hessian`, the ICP's own curvature (its Gauss-Newton `JᵀWJ`), its
-    /// translation and rotation parts each scaled so the cube root of the block's
-    /// determinant (the geometric mean of its information) is one over the standard
-    /// deviation's square: directions the surfaces pin weigh more, directions they leave
-    /// loose (sliding along a wall) less; `loops`, `hessian` for loop pairs only.
-    pub edge_information: EdgeInformation,
     /// Standard deviations of the prior that keeps a refined frame's dense pose when the
     /// frame is refined again against the adjusted points after bundle adjustment.
     pub prior_sigma_translation: f64,
     pub prior_sigma_rotation_deg: f64,
-    /// Keyframe alignments also compare intensities (0-1 grey levels) with this standard
-    /// deviation: one sigma of intensity weighs as one sigma of the sensor's depth noise at
-    /// 1 m ([`crate::slam::depth_alignment`]); 0: depth alone.
-    pub photometric_sigma: f64,
     /// Keyframe alignments read each keyframe's depth after the map's depth-edge filter
     /// (`map.depth_edge_*`); off: as the sensor gave it.
     pub edges_on_filtered_depth: bool,
-    /// Refine each frame against the surface fused from every frame tracked before it (a
-    /// truncated signed distance volume, [`crate::slam::tsdf`], seen from the frame's pose
-    /// from the keypoints), as KinectFusion tracks, instead of its reference keyframe's depth;
-    /// the keyframe's depth when the fused surface pairs too few points.
-    pub fused_model: bool,
-    /// The fused volume's voxel side and truncation distance, metres.
-    pub fused_voxel: f64,
-    pub fused_truncation: f64,
-    /// At most this many blocks of 8x8x8 voxels (4 KB each).
-    pub fused_max_blocks: usize,
     /// Tracking also aligns each frame's depth to the previous frame's, and after the back
     /// end the frames between two keyframes are placed by a small pose graph of those
     /// frame-to-frame steps and their alignments to the first keyframe, between both
@@ -419,18 +357,11 @@ impl Default for DenseConfig {
             edge_min_inlier_fraction: 0.5,
             edge_agree_translation: 0.1,
             edge_agree_rotation_deg: 6.0,
-            robust_edges: false,
             sigma_translation: 0.002,
             sigma_rotation_deg: 0.5,
-            edge_information: EdgeInformation::Fixed,
             prior_sigma_translation: 0.0005,
             prior_sigma_rotation_deg: 0.1,
-            photometric_sigma: 0.0,
             edges_on_filtered_depth: true,
-            fused_model: false,
-            fused_voxel: 0.01,
-            fused_truncation: 0.04,
-            fused_max_blocks: 100_000,
             frame_graph: true,
             frame_graph_reference_weight: 0.25,
         }
@@ -449,10 +380,6 @@ pub struct KeyframeConfig {
     pub max_rotation_deg: f64,
     /// This many frames since the reference keyframe (0: no limit).
     pub max_frames: usize,
-    /// No keyframe on a frame where exactly one of the colour and depth images repeats the
-    /// previous frame's (the two then show different instants); the next frame decides
-    /// ([`crate::slam::repeated_images`]).
-    pub skip_mismatched: bool,
 }
 
 impl Default for KeyframeConfig {
@@ -462,7 +389,6 @@ impl Default for KeyframeConfig {
             max_translation: 0.10,
             max_rotation_deg: 10.0,
             max_frames: 20,
-            skip_mismatched: false,
         }
     }
 }
@@ -600,17 +526,6 @@ impl Default for LabelVoteConfig {
     }
 }
 
-/// How a keyframe edge's information is shaped ([`DenseConfig::edge_information`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum EdgeInformation {
-    Fixed,
-    Hessian,
-    /// `hessian` for loop pairs, `fixed` for consecutive ones (tried 2026-12-02: lab/notes/slam-results.md,
-    /// "Keyframe edges shaped by the alignment's curvature").
-    Loops,
-}
-
 /// Robust kernel of the pose graph.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -673,10 +588,6 @@ pub struct CorrectionConfig {
     pub local_max_scale_change: f64,
     /// Seed of the random pair selection.
     pub seed: u64,
-    /// Frames between two consecutive keyframes take both keyframes' corrections,
-    /// interpolated by time ([`crate::slam::frame_blending`]); false: their reference
-    /// keyframe's alone.
-    pub blend_frames: bool,
 }
 
 impl Default for CorrectionConfig {
@@ -703,7 +614,6 @@ impl Default for CorrectionConfig {
             local_min_observations: 20,
             local_max_scale_change: 0.2,
             seed: 0,
-            blend_frames: false,
         }
     }
 }
@@ -862,12 +772,6 @@ mod tests {
             ("features", "orb_scale_factor", "nan"),
             ("features", "top_k", "100000000"),
             ("pnp", "max_iterations", "0"),
-            ("tracking", "keypoint_edge_ratio", "nan"),
-            ("tracking", "keypoint_edge_ratio", "-0.1"),
-            ("tracking", "keypoint_edge_reach", "65"),
-            ("tracking", "epipolar_min_parallax", "nan"),
-            ("tracking", "epipolar_min_parallax", "-0.01"),
-            ("tracking", "epipolar_min_parallax", "2"),
             ("system", "queue", "0"),
             ("system", "feature_workers", "17"),
             ("map", "min_views", "0"),
@@ -882,17 +786,6 @@ mod tests {
             ("dense", "agree_rotation_deg", "-1"),
             ("dense", "edge_agree_translation", "0"),
             ("dense", "edge_agree_rotation_deg", "nan"),
-            ("dense", "photometric_sigma", "1.5"),
-            ("dense", "photometric_sigma", "-0.1"),
-            ("dense", "photometric_sigma", "1e-9"),
-            ("dense", "photometric_sigma", "nan"),
-            ("dense", "fused_voxel", "0.0001"),
-            ("dense", "fused_voxel", "nan"),
-            ("dense", "fused_truncation", "0.015"),
-            ("dense", "fused_truncation", "0.5"),
-            ("dense", "fused_truncation", "inf"),
-            ("dense", "fused_max_blocks", "0"),
-            ("dense", "fused_max_blocks", "100000000"),
             ("bundle_adjustment", "iterations", "100000"),
             ("bundle_adjustment", "max_keyframes", "100000"),
             ("bundle_adjustment", "local_keyframes", "301"),
@@ -932,21 +825,48 @@ mod tests {
                 .to_string();
             assert!(e.contains("c.toml") && e.contains(needle), "{text}: {e}");
         }
-        // Two ways of placing the frames between keyframes: one at a time.
-        let e = SlamConfig::parse("[correction]\nblend_frames = true\n", Path::new("c.toml"))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("correction.blend_frames and dense.frame_graph"),
-            "{e}"
-        );
-        let text = "[correction]\nblend_frames = true\n[dense]\nframe_graph = false\n";
-        assert!(SlamConfig::parse(text, Path::new("c.toml")).is_ok());
+        // Switches that were removed: a file that still sets one is refused, the key named.
+        for (section, field) in [
+            ("tracking", "sync_depth"),
+            ("tracking", "local_keyframes"),
+            ("tracking", "keypoint_edge_ratio"),
+            ("tracking", "epipolar_rotation"),
+            ("dense", "fused_model"),
+            ("dense", "photometric_sigma"),
+            ("dense", "robust_edges"),
+            ("dense", "edge_information"),
+            ("keyframes", "skip_mismatched"),
+            ("correction", "blend_frames"),
+            ("features", "fpfdcnn_subpixel_radius"),
+        ] {
+            let text = format!("[{section}]\n{field} = 0\n");
+            let e = SlamConfig::parse(&text, Path::new("old.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("old.toml:2") && e.contains(&format!("unknown field `{field}`")),
+                "{text}: {e}"
+            );
+        }
         let shipped = include_str!("../../../configs/slam/default.toml");
         assert_eq!(
             SlamConfig::parse(shipped, Path::new("configs/slam/default.toml")).unwrap(),
             cfg,
             "configs/slam/default.toml must list the defaults"
         );
+        // ... every one of them: the same sections and keys as the defaults written out.
+        let keys = |text: &str| -> Vec<String> {
+            let table: toml::Table = toml::from_str(text).unwrap();
+            let mut keys: Vec<String> = table
+                .iter()
+                .flat_map(|(section, fields)| {
+                    let fields = fields.as_table().expect("a section").keys();
+                    fields.map(move |field| format!("{section}.{field}"))
+                })
+                .collect();
+            keys.sort();
+            keys
+        };
+        assert_eq!(keys(shipped), keys(&text), "configs/slam/default.toml");
     }
 }

@@ -39,24 +39,12 @@ impl SlamConfig {
             256,
             "features.fpfdcnn_border",
         )?;
-        count(
-            self.features.fpfdcnn_subpixel_radius,
-            0,
-            8,
-            "features.fpfdcnn_subpixel_radius",
-        )?;
         count(self.pnp.max_iterations, 1, 1_000_000, "pnp.max_iterations")?;
         count(
             self.pnp.refine_iterations,
             0,
             10_000,
             "pnp.refine_iterations",
-        )?;
-        count(
-            self.tracking.local_keyframes,
-            0,
-            super::LOCAL_CANDIDATES,
-            "tracking.local_keyframes",
         )?;
         count(
             self.tracking.relocalisation_candidates,
@@ -149,25 +137,6 @@ impl SlamConfig {
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
         }
-        let t = &self.tracking;
-        if !(0.0..=10.0).contains(&t.keypoint_edge_ratio) {
-            return Err(format!(
-                "tracking.keypoint_edge_ratio must be in [0, 10] (0: off), got {}",
-                t.keypoint_edge_ratio
-            ));
-        }
-        count(
-            t.keypoint_edge_reach as usize,
-            0,
-            64,
-            "tracking.keypoint_edge_reach",
-        )?;
-        if !(0.0..=1.0).contains(&t.epipolar_min_parallax) {
-            return Err(format!(
-                "tracking.epipolar_min_parallax must be in [0, 1] (baseline / median depth), got {}",
-                t.epipolar_min_parallax
-            ));
-        }
         Ok(())
     }
 
@@ -197,33 +166,6 @@ impl SlamConfig {
         pos(d.sigma_rotation_deg, "dense.sigma_rotation_deg")?;
         pos(d.prior_sigma_translation, "dense.prior_sigma_translation")?;
         pos(d.prior_sigma_rotation_deg, "dense.prior_sigma_rotation_deg")?;
-        // 0 turns it off; a tiny sigma would overflow the photometric weights.
-        let sigma = d.photometric_sigma;
-        if sigma != 0.0 && !(1e-3..=1.0).contains(&sigma) {
-            return Err(format!(
-                "dense.photometric_sigma must be 0 (off) or in [0.001, 1], got {sigma}"
-            ));
-        }
-        // Voxels of 2 mm to 10 cm, a truncation of at least one voxel; the block count sizes
-        // the volume's memory (4 KB a block: 2 GB at the bound).
-        if !(0.002..=0.1).contains(&d.fused_voxel) {
-            return Err(format!(
-                "dense.fused_voxel must be in [0.002, 0.1] metres, got {}",
-                d.fused_voxel
-            ));
-        }
-        // At least two voxels, so that the eight voxels around a point just behind the
-        // surface were written; at most two blocks, which allocation's steps along the band
-        // assume.
-        let (lo, hi) = (2.0 * d.fused_voxel, 16.0 * d.fused_voxel);
-        if !(d.fused_truncation >= lo && d.fused_truncation <= hi) {
-            return Err(format!(
-                "dense.fused_truncation must be in [2, 16] x dense.fused_voxel ({lo} to {hi} \
-                 metres), got {}",
-                d.fused_truncation
-            ));
-        }
-        count(d.fused_max_blocks, 1, 500_000, "dense.fused_max_blocks")?;
         let w = d.frame_graph_reference_weight;
         if !(w > 0.0 && w <= 1000.0) {
             return Err(format!(
@@ -345,13 +287,6 @@ impl SlamConfig {
         }
         if self.correction.min_id_gap == 0 {
             return Err("correction.min_id_gap must be at least 1".into());
-        }
-        if self.correction.blend_frames && self.dense.frame_graph {
-            return Err(
-                "correction.blend_frames and dense.frame_graph both place the frames \
-                 between keyframes: turn one off"
-                    .into(),
-            );
         }
         pos(self.system.position_tolerance, "system.position_tolerance")?;
         Ok(())

@@ -16,7 +16,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::FpfdcnnDetector;
 use sdf_slam::nn::BackendKind;
-use sdf_slam::slam::evaluation::evaluate_trajectory;
+use sdf_slam::slam::output::evaluation::evaluate_trajectory;
 use sdf_slam::slam::{
     Control, DepthMode, FpfdcnnSource, KeypointSource, NoLabels, OrbSource, Slam, SlamConfig,
 };

@@ -12,10 +12,10 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::nn::BackendKind;
 use sdf_slam::sdfcnn::{Sdfcnn, SdfcnnPredictor};
+use sdf_slam::slam::frontend::tracking::FrameStatus;
 use sdf_slam::slam::map::{KeypointDepth, points_from_depth};
 use sdf_slam::slam::output::write_outputs;
 use sdf_slam::slam::system::Control;
-use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
     DepthMode, OrbSource, SdfcnnSource, SemanticInput, SemanticSource, Slam, SlamConfig, SlamOutput,
 };

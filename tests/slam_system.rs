@@ -10,12 +10,12 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{DepthImage, LabelImage, TumSequence};
 use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{Alignment, DeltaUnit, ape, rpe};
+use sdf_slam::slam::frontend::repeated_images::RepeatCounts;
+use sdf_slam::slam::frontend::tracking::FrameStatus;
+use sdf_slam::slam::output::ply::read_ply;
+use sdf_slam::slam::output::report::{MapAccuracy, Report};
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
-use sdf_slam::slam::ply::read_ply;
-use sdf_slam::slam::repeated_images::RepeatCounts;
-use sdf_slam::slam::report::{MapAccuracy, Report};
 use sdf_slam::slam::system::Control;
-use sdf_slam::slam::tracking::FrameStatus;
 use sdf_slam::slam::{
     DepthMode, GroundTruthSource, NoLabels, OrbSource, SemanticSource, Slam, SlamConfig, SlamOutput,
 };

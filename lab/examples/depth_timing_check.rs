@@ -7,7 +7,7 @@ use sdf_slam::camera::{Camera, RayTable};
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::geometry::rotation_angle;
 use sdf_slam::slam::config::DenseConfig;
-use sdf_slam::slam::depth_alignment::{DepthModel, align};
+use sdf_slam::slam::frontend::depth_alignment::{DepthModel, align};
 use std::sync::Arc;
 
 fn main() -> anyhow::Result<()> {

@@ -25,7 +25,7 @@ use sdf_slam::geometry::Pose;
 use sdf_slam::metrics::{AxisScale, Stats};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
-use sdf_slam::slam::keyframe_alignment::PairAlignment;
+use sdf_slam::slam::backend::keyframe_alignment::PairAlignment;
 
 /// Inlier gate on the epipolar distance, pixels.
 const GATE_PX: f64 = 1.5;

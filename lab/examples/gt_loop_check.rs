@@ -18,7 +18,7 @@ use sdf_slam::camera::{Camera, RayTable};
 use sdf_slam::dataset::{DepthImage, TumSequence};
 use sdf_slam::geometry::Pose;
 use sdf_slam::slam::SlamConfig;
-use sdf_slam::slam::depth_alignment::{DepthModel, align};
+use sdf_slam::slam::frontend::depth_alignment::{DepthModel, align};
 use sdf_slam::trajectory::Trajectory;
 use std::sync::Arc;
 

@@ -11,7 +11,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::{LabelImage, TumSequence};
 use sdf_slam::slam::SlamConfig;
 use sdf_slam::slam::map::KeyframeView;
-use sdf_slam::slam::multiview_depth::{GrayView, SweepReference, sweep_depth};
+use sdf_slam::slam::mapping::multiview_depth::{GrayView, SweepReference, sweep_depth};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();

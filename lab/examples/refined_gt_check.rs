@@ -24,7 +24,7 @@ use sdf_slam::geometry::{Pose, pose_to_tum};
 use sdf_slam::metrics::matching::{CORRECT_MATCH_PX, MatchingAccuracy, matching_accuracy};
 use sdf_slam::raster::rgb_to_gray;
 use sdf_slam::slam::SlamConfig;
-use sdf_slam::slam::keyframe_alignment::PairAlignment;
+use sdf_slam::slam::backend::keyframe_alignment::PairAlignment;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();

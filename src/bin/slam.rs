@@ -24,9 +24,9 @@ use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
 use sdf_slam::nn::BackendKind;
 use sdf_slam::signals::StopSignals;
+use sdf_slam::slam::frontend::tracking::FrameRecord;
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
-use sdf_slam::slam::tracking::FrameRecord;
 use sdf_slam::slam::{
     Control, DepthMode, FpfdcnnSource, GroundTruthSource, KeypointSource, NoLabels, OrbSource,
     SdfcnnSource, SemanticSource, Slam, SlamConfig,

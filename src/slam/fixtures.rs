@@ -1,9 +1,9 @@
 //! Small map pieces the unit tests of several modules build on.
 
+use super::frontend::tracking::{FrameRecord, FrameStatus};
+use super::map::KeyFrame;
 use crate::dataset::DepthImage;
 use crate::geometry::Pose;
-use crate::slam::map::KeyFrame;
-use crate::slam::tracking::{FrameRecord, FrameStatus};
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 /// A pose `x` metres along x (and a hundredth of that along y), turned `yaw_deg` about y.
@@ -19,7 +19,7 @@ pub fn keyframe(id: usize, stamp: f64, odom_pose: Pose, pose: Pose) -> KeyFrame 
     KeyFrame {
         stamp,
         pose,
-        ..crate::slam::keyframe_alignment::tests::keyframe(id, &DepthImage::new(1, 1), odom_pose)
+        ..super::backend::keyframe_alignment::tests::keyframe(id, &DepthImage::new(1, 1), odom_pose)
     }
 }
 

@@ -5,7 +5,7 @@
 //! threads share it as [`SharedMap`].
 
 use super::config::TrackingConfig;
-use super::keypoints::KeyFeatures;
+use super::frontend::keypoints::KeyFeatures;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
 use crate::geometry::{Pose, renormalized};

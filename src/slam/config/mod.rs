@@ -232,7 +232,7 @@ pub struct TrackingConfig {
     pub start_at_ground_truth: bool,
     /// RGB-D mode: after the back end, move each frame's pose from its depth image's instant
     /// to its colour image's (the trajectory's stamps), along the trajectory
-    /// ([`crate::slam::colour_instant`]); frames whose stamps are equal do not move.
+    /// ([`crate::slam::backend::colour_instant`]); frames whose stamps are equal do not move.
     pub colour_instant: bool,
 }
 
@@ -251,7 +251,7 @@ impl Default for TrackingConfig {
 }
 
 /// RGB-D mode: each tracked frame's pose refined against its reference keyframe's depth by
-/// point-to-plane ICP ([`crate::slam::depth_alignment`]), kept when it agrees with the pose
+/// point-to-plane ICP ([`crate::slam::frontend::depth_alignment`]), kept when it agrees with the pose
 /// from the keypoints.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -270,7 +270,7 @@ pub struct DenseConfig {
     pub huber: f64,
     /// Weigh each pair by the inverse variance of the sensor's depth noise at its depth,
     /// relative to 1 m (a Kinect's, which grows with the square of the depth:
-    /// [`crate::slam::depth_alignment::axial_noise`]; the model point's axial noise only,
+    /// [`crate::slam::frontend::depth_alignment::axial_noise`]; the model point's axial noise only,
     /// whatever the angle of the surface); `huber` then applies at 1 m, so at 3 m to
     /// distances 7.5 times larger, where the levels' `max_distance` gates first.
     pub noise_weighting: bool,
@@ -285,7 +285,7 @@ pub struct DenseConfig {
     /// Keyframe-to-keyframe edges: each keyframe's depth (at the fusion resolution) is aligned
     /// to this many preceding keyframes' by the same ICP, and each alignment that agrees with
     /// tracking becomes a relative-pose edge of the pose graph and of bundle adjustment
-    /// ([`crate::slam::keyframe_alignment`]; 0: none, and in monocular mode never).
+    /// ([`crate::slam::backend::keyframe_alignment`]; 0: none, and in monocular mode never).
     pub keyframe_edges: usize,
     /// With `keyframe_edges` > 0: also align the two keyframes of each verified loop
     /// constraint (proximity, similarity, random), from its PnP pose.
@@ -313,7 +313,7 @@ pub struct DenseConfig {
     /// Tracking also aligns each frame's depth to the previous frame's, and after the back
     /// end the frames between two keyframes are placed by a small pose graph of those
     /// frame-to-frame steps and their alignments to the first keyframe, between both
-    /// keyframes' corrected poses ([`crate::slam::frame_graph`]).
+    /// keyframes' corrected poses ([`crate::slam::backend::frame_graph`]).
     pub frame_graph: bool,
     /// In that graph, the weight (information) of a frame's dense pose against its reference
     /// keyframe relative to a frame-to-frame step's, for the first frame after the keyframe;
@@ -415,7 +415,7 @@ pub struct MapConfig {
     /// kept; what one keyframe alone saw there (flicker of predicted depth, sensor
     /// noise at edges) is not.
     pub min_views: u16,
-    /// Depth edges ([`super::depth_edges`]): a pixel where the second difference of inverse
+    /// Depth edges ([`crate::slam::mapping::depth_edges`]): a pixel where the second difference of inverse
     /// depth over `depth_edge_reach` pixels (full resolution, along x or y), times its
     /// depth, exceeds `depth_edge_ratio` is not fused (0: every pixel). Planes, slanted or
     /// not, score 0.
@@ -444,7 +444,7 @@ impl Default for MapConfig {
     }
 }
 
-/// Multi-view depth of monocular keyframes ([`super::multiview_depth`]): SDFCNN's
+/// Multi-view depth of monocular keyframes ([`crate::slam::mapping::multiview_depth`]): SDFCNN's
 /// prediction is measured again by a plane sweep against earlier keyframes where there is
 /// texture and parallax. RGB-D mode does not use it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -619,7 +619,7 @@ impl Default for CorrectionConfig {
 }
 
 /// Bundle adjustment of the keyframe poses and the points their matched keypoints observe
-/// ([`crate::slam::bundle_adjustment`]), run after the final pose-graph solve.
+/// ([`crate::slam::backend::bundle_adjustment`]), run after the final pose-graph solve.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BundleAdjustmentConfig {
@@ -646,7 +646,7 @@ pub struct BundleAdjustmentConfig {
     pub edge_weight: f64,
     /// Afterwards, refine each tracked frame's pose against the adjusted points.
     pub refine_frames: bool,
-    /// Local bundle adjustment during the run ([`crate::slam::local_bundle_adjustment`]):
+    /// Local bundle adjustment during the run ([`crate::slam::backend::local_bundle_adjustment`]):
     /// at most this many keyframes free around each new one (0: off, the default; 10 when
     /// on).
     pub local_keyframes: usize,

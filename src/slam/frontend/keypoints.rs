@@ -76,7 +76,7 @@ pub struct OrbSource {
 
 impl OrbSource {
     /// ORB with the keypoint settings of a SLAM configuration.
-    pub fn from_config(cfg: &super::config::FeatureConfig) -> Self {
+    pub fn from_config(cfg: &crate::slam::config::FeatureConfig) -> Self {
         OrbSource {
             config: cfg.orb(),
             fallback_threshold: cfg.orb_fallback_threshold,

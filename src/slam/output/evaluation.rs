@@ -1,13 +1,8 @@
 //! A run measured against ground truth: the trajectory's ATE / RPE as evo computes them
 //! (Table 10) and the map's Table 11 figures (map points within a tolerance of the true
-//! surface, per-class label accuracy). Pure computation: [`super::output`] writes files.
+//! surface, per-class label accuracy). Pure computation: [`crate::slam::output`] writes files.
 
-use super::config::SlamConfig;
-use super::map::ViewBounds;
 use super::report::{AteReport, ClassAccuracy, MapAccuracy, RpeReport};
-use super::semantic_map::MapPoint;
-use super::semantic_source::GroundTruthSource;
-use super::system::{DepthMode, SlamOutput};
 use crate::camera::Camera;
 use crate::classes;
 use crate::dataset::{DepthImage, LabelImage, TumSequence};
@@ -15,6 +10,11 @@ use crate::error::{Error, Result};
 use crate::geometry::Sim3;
 use crate::metrics::Stats;
 use crate::metrics::trajectory::{Alignment, Ape, DeltaUnit, ape, rpe};
+use crate::slam::config::SlamConfig;
+use crate::slam::map::ViewBounds;
+use crate::slam::mapping::semantic_map::MapPoint;
+use crate::slam::mapping::semantic_source::GroundTruthSource;
+use crate::slam::system::{DepthMode, SlamOutput};
 use crate::trajectory::Trajectory;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};

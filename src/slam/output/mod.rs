@@ -1,18 +1,24 @@
 //! Outputs of a run, all written atomically: `trajectory.txt` (every frame, TUM),
 //! `keyframes.txt`, `map.ply`, `map_topdown.png`, `trajectory.png`, and `report.md` /
-//! `report.json` ([`super::report`]), the report last: a folder holds a finished run
-//! exactly when it has one.
+//! `report.json` ([`report`]), the report last: a folder holds a finished run exactly when it
+//! has one. [`evaluation`] measures the run against the sequence's ground truth, [`ply`]
+//! writes (and reads) the map, [`topdown`] draws it.
 
-use super::config::SlamConfig;
-use super::evaluation::{evaluate_map_accuracy, evaluate_trajectory, keyframe_ates};
-use super::ply::write_ply;
-use super::report::Report;
-use super::system::SlamOutput;
-use super::topdown::render_topdown;
+pub mod evaluation;
+pub mod ply;
+pub mod report;
+pub mod topdown;
+
 use crate::camera::Camera;
 use crate::dataset::TumSequence;
 use crate::error::{Error, Result};
+use crate::slam::config::SlamConfig;
+use crate::slam::system::SlamOutput;
+use evaluation::{evaluate_map_accuracy, evaluate_trajectory, keyframe_ates};
+use ply::write_ply;
+use report::Report;
 use std::path::{Path, PathBuf};
+use topdown::render_topdown;
 
 /// Writes only `trajectory.txt` (e.g. as soon as a run is interrupted).
 pub fn write_trajectory(out: &SlamOutput, dir: &Path) -> Result<PathBuf> {

@@ -3,19 +3,19 @@
 //! monocular mode, insertion into the shared map and fusion into the voxel grid;
 //! keyframes that correction moved are fused again, a few at a time.
 
-use super::config::SlamConfig;
 use super::depth_edges::drop_depth_edges;
-use super::map::{
-    KeyFrame, KeyframeFeatures, KeyframeView, KeypointDepth, Map, SharedMap, read, write,
-};
 use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
-use super::system::{Log, StageTime};
-use super::tracking::NewKeyframe;
 use crate::camera::Camera;
 use crate::dataset::{DepthImage, LabelImage};
 use crate::geometry::Pose;
+use crate::slam::config::SlamConfig;
+use crate::slam::frontend::tracking::NewKeyframe;
+use crate::slam::map::{
+    KeyFrame, KeyframeFeatures, KeyframeView, KeypointDepth, Map, SharedMap, read, write,
+};
+use crate::slam::system::{Log, StageTime};
 use image::RgbImage;
 use nalgebra::Vector3;
 use std::collections::VecDeque;

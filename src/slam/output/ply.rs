@@ -2,9 +2,9 @@
 //! blue`, semantic colour as `sem_red sem_green sem_blue`, and `label`; MeshLab,
 //! CloudCompare and Open3D read it.
 
-use super::semantic_map::MapPoint;
 use crate::classes;
 use crate::error::{Error, Result};
+use crate::slam::mapping::semantic_map::MapPoint;
 use nalgebra::Point3;
 use std::io::{BufRead, Read, Write};
 use std::path::Path;

@@ -16,10 +16,10 @@
 //! so threaded and single-thread runs give the same live poses.
 
 use super::bundle_adjustment::{BaSettings, BaSummary, Track, adjust, find, track_of_group};
-use super::map::Map;
 use super::pose_graph::Edge;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};
+use crate::slam::map::Map;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -220,10 +220,10 @@ impl LocalBaStats {
 mod tests {
     use super::*;
     use crate::dataset::{DepthImage, LabelImage};
+    use crate::slam::backend::pose_graph::{se3_exp, se3_log};
     use crate::slam::config::SlamConfig;
-    use crate::slam::keypoints::KeyFeatures;
+    use crate::slam::frontend::keypoints::KeyFeatures;
     use crate::slam::map::{Constraint, ConstraintKind, KeyFrame, KeyframeFeatures, KeyframeView};
-    use crate::slam::pose_graph::{se3_exp, se3_log};
     use nalgebra::{Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector6};
     use std::sync::Arc;
 

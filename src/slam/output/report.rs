@@ -2,16 +2,16 @@
 //! (Table 10), timing per stage, tracking failures, the map accuracy of Table 11 when
 //! ground truth allows (per-class accuracy of the map labels and the share of map points
 //! within a tolerance of the true surface), and the files written. Measured by
-//! [`super::evaluation`], written by [`super::output`].
+//! [`super::evaluation`], written by [`crate::slam::output`].
 
 use super::evaluation::TrajectoryEvaluation;
-use super::repeated_images::RepeatCounts;
-use super::semantic_map::{MapPoint, label_histogram};
-use super::system::{DepthMode, SlamOutput};
 use crate::classes;
 use crate::dataset::TumSequence;
 use crate::metrics::Stats;
 use crate::metrics::trajectory::Alignment;
+use crate::slam::frontend::repeated_images::RepeatCounts;
+use crate::slam::mapping::semantic_map::{MapPoint, label_histogram};
+use crate::slam::system::{DepthMode, SlamOutput};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -139,20 +139,21 @@ pub struct Report {
     pub label_histogram: Vec<LabelCount>,
     pub map_accuracy: Option<MapAccuracy>,
     pub semantic_failures: Vec<(usize, String)>,
-    pub correction: super::correction::CorrectionStats,
-    pub local_correction: super::correction::LocalSummary,
+    pub correction: crate::slam::backend::correction::CorrectionStats,
+    pub local_correction: crate::slam::backend::correction::LocalSummary,
     /// The final bundle adjustment (`None`: off).
     #[serde(default)]
-    pub bundle_adjustment: Option<super::bundle_adjustment::BaSummary>,
+    pub bundle_adjustment: Option<crate::slam::backend::bundle_adjustment::BaSummary>,
     /// Dense keyframe-to-keyframe edges (`None`: off).
     #[serde(default)]
-    pub keyframe_alignment: Option<super::keyframe_alignment::KeyframeAlignmentSummary>,
+    pub keyframe_alignment:
+        Option<crate::slam::backend::keyframe_alignment::KeyframeAlignmentSummary>,
     /// Multi-view depth of monocular keyframes (zero in RGB-D mode).
     #[serde(default)]
-    pub multiview: super::multiview_depth::SweepSummary,
+    pub multiview: crate::slam::mapping::multiview_depth::SweepSummary,
     /// The local bundle adjustments during the run.
     #[serde(default)]
-    pub local_adjustment: super::local_bundle_adjustment::LocalBaStats,
+    pub local_adjustment: crate::slam::backend::local_bundle_adjustment::LocalBaStats,
     /// The keyframes' ATE live, before and after the final optimisation.
     #[serde(default)]
     pub keyframe_ate: super::evaluation::KeyframeAtes,
@@ -182,7 +183,7 @@ fn label_counts(points: &[MapPoint]) -> Vec<LabelCount> {
 
 impl Report {
     /// The report of a finished run: its counts and timings, the errors against ground
-    /// truth, and the map's label histogram (files are listed by [`super::output`]).
+    /// truth, and the map's label histogram (files are listed by [`crate::slam::output`]).
     pub fn new(
         out: &SlamOutput,
         seq: &TumSequence,

@@ -14,10 +14,10 @@
 //! than two steps away. Its depth is then the parabola's vertex through the best score and
 //! its neighbours. The rest keep the prediction (or are dropped, as the caller chooses).
 
-use super::config::MultiviewConfig;
 use crate::camera::Camera;
 use crate::dataset::DepthImage;
 use crate::geometry::Pose;
+use crate::slam::config::MultiviewConfig;
 use image::RgbImage;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 use rayon::prelude::*;

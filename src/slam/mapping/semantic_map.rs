@@ -2,14 +2,14 @@
 //! pixels with depth are back-projected (eq 9 inverted) to camera points, moved
 //! to the world by the keyframe's pose, and fused as `(X, Y, Z, R, G, B, label)`
 //! in a voxel grid (hash map of voxel indices): positions and colours are
-//! averaged, labels voted. Written to file by [`super::ply`], drawn by
-//! [`super::topdown`].
+//! averaged, labels voted. Written to file by [`crate::slam::output::ply`], drawn by
+//! [`crate::slam::output::topdown`].
 
-use super::config::{LabelVoteConfig, MapConfig};
-use super::map::KeyFrame;
 use crate::camera::{Camera, RayTable};
 use crate::classes;
 use crate::geometry::Pose;
+use crate::slam::config::{LabelVoteConfig, MapConfig};
+use crate::slam::map::KeyFrame;
 use nalgebra::Point3;
 use rustc_hash::{FxHashMap, FxHashSet};
 

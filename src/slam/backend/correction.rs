@@ -19,14 +19,14 @@
 use super::bundle_adjustment::{
     BaSettings, BaSummary, Track, adjust_map, match_groups, weighted_edges,
 };
-use super::config::SlamConfig;
-use super::keypoints::similarity;
 use super::local_bundle_adjustment;
-use super::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
 use super::pose_graph::{Edge, LmSettings, LmSummary, information, optimise};
-use super::tracking::verify_pair;
 use crate::camera::Camera;
 use crate::geometry::Pose;
+use crate::slam::config::SlamConfig;
+use crate::slam::frontend::keypoints::similarity;
+use crate::slam::frontend::matching::verify_pair;
+use crate::slam::map::{Constraint, ConstraintKind, Map, SharedMap, read, write};
 use nalgebra::{Point3, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,5 +1,5 @@
 //! Depth between keyframes (RGB-D mode): keyframe depth images aligned to each other by the
-//! point-to-plane ICP of [`super::depth_alignment`], at the keyframes' fusion resolution:
+//! point-to-plane ICP of [`crate::slam::frontend::depth_alignment`], at the keyframes' fusion resolution:
 //! each keyframe to its `dense.keyframe_edges` predecessors, from tracking's relative pose,
 //! and (`dense.loop_edges`) the two keyframes of each verified loop constraint, from its PnP
 //! pose. An alignment that pairs enough points and stays near its starting pose becomes a
@@ -10,14 +10,14 @@
 //! The starting poses never change once made (tracking's odometry, the constraints' PnP), so
 //! the edges do not depend on when they are computed: threaded and single-thread runs agree.
 
-use super::config::{DenseConfig, SlamConfig};
-use super::depth_alignment::{DepthModel, align};
-use super::map::{ConstraintKind, KeyFrame, Map};
 use super::pose_graph::{Edge, information};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
+use crate::slam::config::{DenseConfig, SlamConfig};
+use crate::slam::frontend::depth_alignment::{DepthModel, align};
+use crate::slam::map::{ConstraintKind, KeyFrame, Map};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -212,7 +212,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::dataset::LabelImage;
     use crate::geometry::Pose;
-    use crate::slam::depth_alignment::tests::render;
+    use crate::slam::frontend::depth_alignment::tests::render;
     use crate::slam::map::{KeyFrame, KeyframeFeatures, KeyframeView};
     use nalgebra::{Translation3, UnitQuaternion};
 

@@ -1,10 +1,10 @@
 //! The semantic map drawn from above with the keyframe path, a scale bar and a class
 //! legend (`topdown.png` of a run).
 
-use super::semantic_map::{MapPoint, label_histogram};
 use crate::classes;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
+use crate::slam::mapping::semantic_map::{MapPoint, label_histogram};
 use nalgebra::Vector3;
 use std::collections::HashMap;
 use std::path::Path;

@@ -22,9 +22,9 @@
 //! trajectory written for the frames does, keyframes' own frames included (each record's
 //! relative pose, or its odometry pose without a reference keyframe).
 
-use super::map::Map;
-use super::tracking::{FrameRecord, FrameStatus};
 use crate::geometry::{Pose, renormalized};
+use crate::slam::frontend::tracking::{FrameRecord, FrameStatus};
+use crate::slam::map::Map;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// Offsets shorter than this (seconds) are treated as none.

@@ -9,8 +9,8 @@
 //! `∂e/∂δ_i = −J_r⁻¹(e) Ad(T_j⁻¹ T_i)`, `J_r⁻¹(e) ≈ I + ½ ad(e)` (Barfoot,
 //! "State Estimation for Robotics", 2017, ch. 7).
 
-use super::config::RobustKernel;
 use crate::geometry::Pose;
+use crate::slam::config::RobustKernel;
 use nalgebra::{
     DMatrix, DVector, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6,
 };

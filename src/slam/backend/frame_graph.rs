@@ -19,11 +19,11 @@
 //! their poses; the result is written back into each frame's relative pose, so the output
 //! reads it unchanged. Frames after the last keyframe (no `B`) are solved against `A` alone.
 
-use super::config::{DenseConfig, RobustKernel};
-use super::map::Map;
 use super::pose_graph::{Edge, LmSettings, information, optimise};
-use super::tracking::{FrameRecord, FrameStatus};
 use crate::geometry::{Pose, renormalized};
+use crate::slam::config::{DenseConfig, RobustKernel};
+use crate::slam::frontend::tracking::{FrameRecord, FrameStatus};
+use crate::slam::map::Map;
 use std::ops::Range;
 
 /// What placing the frames did.

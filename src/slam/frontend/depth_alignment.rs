@@ -6,12 +6,12 @@
 //! ways, as everywhere else in the system. Tracking keeps the refined pose only when it agrees
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
 
-use super::config::DenseConfig;
-use super::map::ViewBounds;
-use super::pose_graph::se3_exp;
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
 use crate::geometry::{Pose, renormalized};
+use crate::slam::backend::pose_graph::se3_exp;
+use crate::slam::config::DenseConfig;
+use crate::slam::map::ViewBounds;
 use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use std::sync::Arc;

@@ -2,7 +2,7 @@
 //! poses and the world points their matched keypoints observe, optimised together.
 //!
 //! A *track* is one world point seen by several keyframes: the keypoints that data
-//! correction's verified pairs matched ([`super::map::Constraint::matches`]), joined
+//! correction's verified pairs matched ([`crate::slam::map::Constraint::matches`]), joined
 //! transitively ([`tracks`]); a track in which one keyframe appears twice is dropped.
 //! Each observation contributes, in pixels, the reprojection error of the undistorted
 //! keypoint and, where the keypoint has a depth, ORB-SLAM's RGB-D term
@@ -18,14 +18,14 @@
 //! (`factrs`, `tiny-solver`, `apex-solver`) are not available offline here, and the problem
 //! is small (tens of poses, thousands of points).
 
-use super::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
-use super::map::Map;
 use super::pose_graph::{
     Edge, EdgeTerms, edge_terms, robust, se3_exp, se3_log, skew, sqrt_information,
 };
-use super::tracking::FrameRecord;
 use crate::camera::Camera;
 use crate::geometry::{Pose, renormalized};
+use crate::slam::config::{BundleAdjustmentConfig, RobustKernel, SlamConfig};
+use crate::slam::frontend::tracking::FrameRecord;
+use crate::slam::map::Map;
 use nalgebra::{
     DMatrix, DVector, Matrix3, Matrix3x6, Matrix6, Point2, Point3, Vector2, Vector3, Vector6,
 };
@@ -769,7 +769,7 @@ fn refine_pose(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::slam::pose_graph::se3_log;
+    use crate::slam::backend::pose_graph::se3_log;
     use nalgebra::{Translation3, UnitQuaternion};
 
     fn settings(depth_bf: f64) -> BaSettings {

@@ -1,0 +1,17 @@
+//! Mapping (the paper's semantic mapping, ORB-SLAM3's LocalMapping): each new keyframe's
+//! labels and depth, fused into the 3D semantic map (section IV-C).
+//!
+//! * [`local_mapper`] — the stage: semantics, depth, fusion and re-fusion of keyframes the
+//!   back end moved;
+//! * [`semantic_source`] — labels (and monocular depth) per keyframe: SDFCNN, ground truth
+//!   or none;
+//! * [`multiview_depth`] — monocular mode: the predicted depth measured again by a plane
+//!   sweep against earlier keyframes;
+//! * [`depth_edges`] — pixels on depth discontinuities dropped before fusion;
+//! * [`semantic_map`] — the voxel map and its label votes.
+
+pub mod depth_edges;
+pub mod local_mapper;
+pub mod multiview_depth;
+pub mod semantic_map;
+pub mod semantic_source;

@@ -26,6 +26,7 @@ pub mod io;
 pub mod malloc;
 pub mod metrics;
 pub mod nn;
+pub mod output_lock;
 pub mod plot;
 pub mod pnp;
 pub mod range_matcher;

@@ -18,6 +18,7 @@
 //! the trainable-parameter count.
 
 mod default_run;
+mod outputs;
 mod sweep;
 mod trainers;
 
@@ -58,6 +59,11 @@ struct RunArgs {
     /// Continue from the last checkpoint of the output folder (sweeps always resume).
     #[arg(long)]
     resume: bool,
+    /// Start a new run in an output folder that holds an earlier run: its checkpoints,
+    /// metrics.csv, config.toml and pictures are removed first (without it, such a folder is
+    /// an error).
+    #[arg(long, conflicts_with = "resume")]
+    overwrite: bool,
     /// Output folder (overrides the config's `out`).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -143,6 +149,14 @@ fn train(args: RunArgs) -> Result<()> {
         epochs: args.epochs,
         quiet: args.quiet,
     };
+    // One writer per folder, and no new run over an earlier one's files (`--overwrite`).
+    let _lock = outputs::lock_run_folder(
+        args.config.as_deref(),
+        &opts,
+        args.overwrite,
+        args.dry_run,
+        default_run::OUT,
+    )?;
     let Some(config) = args.config else {
         return default_run::run(&opts, args.dry_run);
     };
@@ -172,6 +186,7 @@ fn train(args: RunArgs) -> Result<()> {
 fn export(args: &ExportArgs) -> Result<()> {
     use sdf_slam::training::resolve_checkpoint;
     let (weights, config) = resolve_checkpoint(&args.checkpoint)?;
+    let _lock = outputs::export_folder(&weights, &args.out)?;
     let text = sdf_slam::io::read_text(&config)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
@@ -201,8 +216,10 @@ fn average(args: &AverageArgs) -> Result<()> {
     let mut models = Vec::new();
     let mut names = Vec::new();
     let mut first_config = None;
+    let mut inputs = Vec::new();
     for checkpoint in &args.checkpoints {
         let (weights, config) = resolve_checkpoint(checkpoint)?;
+        inputs.push(outputs::average_input(&weights, &config)?);
         if names.contains(&weights.display().to_string()) {
             anyhow::bail!(
                 "{} is given twice: each checkpoint is averaged once",
@@ -221,6 +238,7 @@ fn average(args: &AverageArgs) -> Result<()> {
         names.push(weights.display().to_string());
         first_config.get_or_insert(text);
     }
+    let _lock = outputs::average_inputs(&inputs, &args.out)?;
     let mean = average_modules(models, &names)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;

@@ -65,6 +65,11 @@ fn main() -> Result<()> {
                 count,
                 registration,
             };
+            // One writer per output folder.
+            let _lock = sdf_slam::output_lock::OutputLock::acquire(
+                &out,
+                &sdf_slam::output_lock::command_line(),
+            )?;
             let started = Instant::now();
             let bar = ProgressBar::new(0).with_style(
                 ProgressStyle::with_template("{bar:40} {pos}/{len} frames {elapsed} (eta {eta})")

@@ -23,6 +23,7 @@ use sdf_slam::camera::Camera;
 use sdf_slam::dataset::TumSequence;
 use sdf_slam::fpfdcnn::inference::FpfdcnnDetector;
 use sdf_slam::nn::BackendKind;
+use sdf_slam::output_lock::{OutputLock, command_line};
 use sdf_slam::signals::StopSignals;
 use sdf_slam::slam::frontend::tracking::FrameRecord;
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
@@ -371,6 +372,8 @@ fn main() -> Result<()> {
         max_frames: cli.max_frames,
     };
     slam.validate()?;
+    // One writer per output folder, locked before any frame is read.
+    let lock = OutputLock::acquire(&out_dir, &command_line())?;
     // The handler first: the header below tells a caller the run has started.
     let signals = StopSignals::install().context("installing the signal handlers")?;
     let stop = signals.flag();
@@ -406,6 +409,7 @@ fn main() -> Result<()> {
     if output.interrupted {
         // The outputs cover the frames processed so far; the exit status says they stop early
         // and why (128 + the signal).
+        drop(lock);
         std::process::exit(signals.exit_code());
     }
     if output.frames.is_empty() {

@@ -10,7 +10,9 @@
 use anyhow::{Context, Result, bail};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
+use sdf_slam::output_lock::{OutputLock, command_line};
 use sdf_slam::synth::{self, SynthConfig, TrajectoryKind, config::parse_resolution};
+use sdf_slam::training::checkpoint::config_difference;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -126,6 +128,19 @@ fn main() -> Result<()> {
         },
         cli.out.display()
     );
+    // One writer per output folder, and no synthetic data of two configs in one.
+    let _lock = OutputLock::acquire(&cli.out, &command_line())?;
+    let saved = cli.out.join("config.toml");
+    if saved.is_file() {
+        let text = sdf_slam::io::read_text(&saved)?;
+        if let Some(diff) = config_difference(&text, &cfg.to_toml()?) {
+            bail!(
+                "{} holds synthetic data of another config ({diff}): writing this one there \
+                 would mix the two; choose another --out, or remove the folder first",
+                cli.out.display()
+            );
+        }
+    }
     let bar = ProgressBar::new(total);
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} images  {per_sec}  eta {eta}")

@@ -175,7 +175,7 @@ pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result
     let mut optim = fit.optimizer.init();
     let (mut model, mut state) = (model, TrainState::default());
     if fit.resume {
-        (model, optim, state) = resume(learner, fit.run, model, optim)?;
+        (model, optim, state) = resume(learner, fit, model, optim)?;
     }
     for epoch in state.epoch..fit.epochs {
         let started = Instant::now();
@@ -369,16 +369,31 @@ fn train_epoch<L: Learner + Sync>(
 
 /// `--resume`: the model, optimizer state and training state of the run's last checkpoint;
 /// `metrics.csv` and the plots are rewritten from that state (a kill between a checkpoint
-/// and its metrics line lost nothing).
+/// and its metrics line lost nothing). The checkpoint must be one this run can continue: at
+/// most `fit.epochs` epochs done, and an optimizer state of this network
+/// ([`check_optimizer_state`]).
 fn resume<L: Learner>(
     learner: &L,
-    run: &RunDir,
+    fit: &Fit,
     model: L::Model,
     optim: ModuleOptimizer,
 ) -> Result<(L::Model, ModuleOptimizer, TrainState)> {
+    let run = fit.run;
     let ckpt = run
         .latest()?
         .ok_or_else(|| Error::invalid(&run.root, "--resume: no checkpoint to resume from"))?;
+    if ckpt.state.epoch > fit.epochs {
+        return Err(Error::invalid(
+            ckpt.dir.join("state.json"),
+            format!(
+                "--resume: this checkpoint has {} epochs done, more than the {} the run is to \
+                 train: nothing to continue (give --epochs {} or more to train further)",
+                ckpt.state.epoch,
+                fit.epochs,
+                ckpt.state.epoch + 1
+            ),
+        ));
+    }
     let model = crate::nn::weights::load_into(
         model,
         &ckpt.model_path(),
@@ -386,17 +401,103 @@ fn resume<L: Learner>(
         &ckpt.dir.join("config.toml"),
     )?;
     let path = ckpt.optimizer_path();
+    check_optimizer_state(&model, &path, learner.name())?;
     let optim = optim
         .load(&path)
         .map_err(|e| Error::invalid(&path, format!("cannot load the optimizer state: {e}")))?;
     write_history(learner, &run.root, &ckpt.state)?;
-    println!(
-        "resuming {} after epoch {} (step {})",
-        run.root.display(),
-        ckpt.state.epoch,
-        ckpt.state.step
-    );
+    if ckpt.state.epoch == fit.epochs {
+        println!(
+            "{}: all {} epochs are trained already, nothing to resume (give --epochs {} or more \
+             to train further)",
+            run.root.display(),
+            fit.epochs,
+            fit.epochs + 1
+        );
+    } else {
+        println!(
+            "resuming {} after epoch {} (step {})",
+            run.root.display(),
+            ckpt.state.epoch,
+            ckpt.state.step
+        );
+    }
     Ok((model, optim, ckpt.state))
+}
+
+/// Refuses an optimizer state (`optimizer.bpk`) that is not one of `model`: each of its state
+/// tensors is kept for a parameter, by the parameter's id, and must have that parameter's
+/// shape; and every parameter it names must be one of the network's (a state saved for
+/// another network, or another run of it, names parameters this one does not have). Burn
+/// would otherwise drop the state it cannot place and go on with fresh optimizer moments.
+pub fn check_optimizer_state<M: Module>(model: &M, path: &Path, network: &str) -> Result<()> {
+    use burn::store::burn_pack::Reader;
+    struct Shapes(std::collections::HashMap<u64, Vec<usize>>);
+    impl burn::module::ModuleVisitor for Shapes {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            self.0.insert(param.id.val(), param.val().dims().to_vec());
+        }
+    }
+    let mut shapes = Shapes(Default::default());
+    model.visit(&mut shapes);
+    let shapes = shapes.0;
+    let unreadable = |e: &dyn std::fmt::Display| {
+        Error::invalid(path, format!("cannot read the optimizer state: {e}"))
+    };
+    let reader = Reader::from_file(path).map_err(|e| unreadable(&e))?;
+    let foreign = |what: String| {
+        Error::invalid(
+            path,
+            format!(
+                "this optimizer state is not one of the {network} in model.bpk beside it \
+                 ({what}): the checkpoint mixes files of two networks or runs; resume from an \
+                 intact checkpoint, or start again with --overwrite"
+            ),
+        )
+    };
+    // `{id}.__rank`: the rank of every parameter with state, tensors or not.
+    for (key, value) in reader.scalars() {
+        let Some(id) = key.strip_suffix(".__rank") else {
+            continue;
+        };
+        let id: u64 = id
+            .parse()
+            .map_err(|_| foreign(format!("a state key \"{key}\"")))?;
+        let Some(shape) = shapes.get(&id) else {
+            return Err(foreign(format!(
+                "it holds state for a parameter the network does not have (id {id})"
+            )));
+        };
+        if usize::try_from(*value).ok() != Some(shape.len()) {
+            return Err(foreign(format!(
+                "parameter {id} has rank {}, the state says {value:?}",
+                shape.len()
+            )));
+        }
+    }
+    for t in reader.into_tensors().map_err(|e| unreadable(&e))? {
+        let Some(id) = t.param_id else {
+            return Err(foreign(format!(
+                "tensor {} belongs to no parameter",
+                t.name
+            )));
+        };
+        let Some(shape) = shapes.get(&id) else {
+            return Err(foreign(format!(
+                "tensor {} is the state of a parameter the network does not have",
+                t.name
+            )));
+        };
+        if t.shape.as_slice() != shape.as_slice() {
+            return Err(foreign(format!(
+                "tensor {} has shape {:?}, its parameter {:?}",
+                t.name,
+                t.shape.as_slice(),
+                shape
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// `metrics.csv` and the learner's plots of the run so far.

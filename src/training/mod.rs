@@ -10,7 +10,7 @@ pub mod optimizer;
 
 /// Backends live with the networks ([`crate::nn::backend`]); re-exported for the trainers.
 pub use crate::nn::backend::{self, BackendKind};
-pub use checkpoint::{Checkpoint, RunDir, TrainState, resolve_checkpoint};
+pub use checkpoint::{Checkpoint, RunContents, RunDir, TrainState, clear_run, resolve_checkpoint};
 pub use history::{EpochRecord, History};
 pub use optimizer::{OptimizerConfig, OptimizerKind};
 

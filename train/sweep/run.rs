@@ -6,7 +6,8 @@ use super::report;
 use super::values::{first_difference, lookup};
 use super::{Run, Sweep};
 use sdf_slam::error::{Error, Result};
-use sdf_slam::training::{RunDir, RunOptions};
+use sdf_slam::output_lock::{OutputLock, command_line};
+use sdf_slam::training::{RunContents, RunDir, RunOptions, clear_run};
 use std::io::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -178,7 +179,18 @@ pub(super) fn fmt_duration(secs: f64) -> String {
 /// sweep's `out`; `backend`, `epochs` and `quiet` apply to every run; runs always resume.
 pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
     let sweep = Sweep::load(path, text, opts)?;
-    std::fs::create_dir_all(&sweep.out).map_err(|e| Error::io(&sweep.out, e))?;
+    // One writer per folder: the sweep's, and below each run's while it trains.
+    let _lock = OutputLock::acquire(&sweep.out, &command_line())?;
+    let contents = RunContents::of(&sweep.out)?;
+    if contents.config.is_some() || contents.last_epoch.is_some() || contents.weights {
+        return Err(Error::invalid(
+            &sweep.out,
+            format!(
+                "this folder holds {}, not a sweep: give the sweep another `out` (or --out)",
+                contents.describe()
+            ),
+        ));
+    }
     sdf_slam::io::write_atomic(sweep.out.join("sweep.toml"), text.as_bytes())?;
     let n = sweep.runs.len();
     log(
@@ -249,7 +261,13 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
             epochs: Some(run.epochs),
             quiet: opts.quiet,
         };
-        std::fs::create_dir_all(&run.dir).map_err(|e| Error::io(&run.dir, e))?;
+        let _run_lock = OutputLock::acquire(&run.dir, &command_line())?;
+        // A run that saved no checkpoint starts again (its folder holds this sweep point's
+        // config, checked when the sweep was loaded): what it left goes first. Checkpoint
+        // folders without `last.json` are never removed: the run then fails, naming them.
+        if done == 0 && RunContents::of(&run.dir)?.checkpoints.is_empty() {
+            clear_run(&run.dir)?;
+        }
         let run_log = run.dir.join("train.log");
         append_line(
             &run_log,

@@ -5,7 +5,7 @@
 //! metric for the data's camera (`--camera`, the folder's `camera.toml`, or NYUv2's camera for
 //! NYU layouts), see `sdf_slam::sdfcnn::focal`.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
 use sdf_slam::classes::NYU40;
 use sdf_slam::metrics::{ConfusionMatrix, DepthAccumulator, DepthMetrics, median_scale};
@@ -130,9 +130,14 @@ pub fn run(a: &SegArgs) -> Result<()> {
     let params = predictor.num_params();
     let classes = predictor.config.num_classes;
     let n = a.limit.map_or(data.len(), |l| l.min(data.len()));
-    if let Some(out) = &a.out {
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    }
+    // One writer per output folder.
+    let _lock = match &a.out {
+        Some(out) => Some(sdf_slam::output_lock::OutputLock::acquire(
+            out,
+            &sdf_slam::output_lock::command_line(),
+        )?),
+        None => None,
+    };
     let mut confusion = ConfusionMatrix::new(classes);
     let mut depth = DepthAccumulator::default();
     // Per image: its median scale and the metrics after dividing it out (scale-invariant).

@@ -122,22 +122,6 @@ pub fn is_default_run(dir: &Path) -> bool {
         && table.get("out").and_then(toml::Value::as_str) == Some(OUT)
 }
 
-/// Removes what a training run wrote in `dir` (its checkpoints, `metrics.csv`, `config.toml`
-/// and pictures); anything else there stays.
-pub fn clear_run_files(dir: &Path) -> Result<()> {
-    let checkpoints = dir.join("checkpoints");
-    if checkpoints.exists() {
-        std::fs::remove_dir_all(&checkpoints)
-            .with_context(|| format!("removing {}", checkpoints.display()))?;
-    }
-    let mut files = vec![dir.join("metrics.csv"), dir.join("config.toml")];
-    files.extend(pictures(dir).into_iter().map(|n| dir.join(n)));
-    for f in files.iter().filter(|f| f.is_file()) {
-        std::fs::remove_file(f).with_context(|| format!("removing {}", f.display()))?;
-    }
-    Ok(())
-}
-
 /// Trains the default run and prints what it did and what to run next.
 pub fn run(opts: &RunOptions, dry_run: bool) -> Result<()> {
     let run = DefaultRun::new(opts)?;
@@ -163,7 +147,7 @@ pub fn run(opts: &RunOptions, dry_run: bool) -> Result<()> {
             );
         }
         println!("replacing the earlier default run in {}", out.display());
-        clear_run_files(&out)?;
+        sdf_slam::training::clear_run(&out)?;
     }
     println!(
         "no --config: the default run, a short SDFCNN training on the bundled NYUv2 fixture \
@@ -359,17 +343,5 @@ mod tests {
         )
         .unwrap();
         assert!(!is_default_run(&dir));
-
-        // Clearing removes the run's files only.
-        std::fs::create_dir_all(dir.join("checkpoints/epoch-0001")).unwrap();
-        for f in ["metrics.csv", "loss.png", "notes.txt"] {
-            std::fs::write(dir.join(f), "x").unwrap();
-        }
-        clear_run_files(&dir).unwrap();
-        let left: Vec<_> = std::fs::read_dir(&dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().into_string().unwrap())
-            .collect();
-        assert_eq!(left, ["notes.txt"]);
     }
 }

@@ -1,12 +1,214 @@
-//! File helpers: atomic writes (temp file + rename, so nothing already written is
-//! ever left half-overwritten) and the whitespace-separated text tables of TUM RGB-D.
+//! File helpers: bounded reading of every input (text and image files alike), atomic writes
+//! (temp file + rename, so nothing already written is ever left half-overwritten), and the
+//! whitespace-separated text tables of TUM RGB-D.
+//!
+//! # Input bounds
+//!
+//! Every text input (configs, camera files, sequence tables, trajectories, split lists, CSV
+//! tables) is read by [`read_text`], every image by [`read_image_bytes`] (through
+//! [`crate::imageio`]). Both refuse what is not a regular file (a FIFO, a device such as
+//! `/dev/zero`, a socket, a directory) before opening it for reading, so an input can neither
+//! block a run forever nor stream into memory without end, and both refuse a file larger than a
+//! bound far above any real dataset's:
+//!
+//! * text files: at most [`MAX_TEXT_BYTES`] (64 MiB) and lines of at most [`MAX_LINE_BYTES`]
+//!   (64 KiB). The largest text file of the datasets read here is a ground-truth trajectory:
+//!   TUM RGB-D's largest `groundtruth.txt` is a few MB (100 Hz motion capture for a few
+//!   minutes), a 7-Scenes `pose.txt` is 200 bytes, NYUv2's split lists a few kB; 64 MiB holds
+//!   a 100 Hz trajectory of about two hours, or the tables of a million-frame sequence (the
+//!   most a sequence may have: [`crate::dataset::tum::MAX_SEQUENCE_FRAMES`]). The bound also
+//!   bounds what parsing allocates: a file of 64 MiB of the shortest possible trajectory lines
+//!   parses into 4 million poses, 270 MB. Real lines are under 200 bytes (a TUM line is a
+//!   stamp, a path and a few numbers; config lines are one setting).
+//! * image files: at most [`MAX_IMAGE_BYTES`] (256 MiB). A 640x480 colour PNG of TUM RGB-D or
+//!   7-Scenes is about 0.5 MB, its 16-bit depth PNG about 0.2 MB; an uncompressed 8-bit RGB
+//!   image of 8192x8192 pixels is 192 MiB.
+//!
+//! Paths quoted in messages are shortened by [`short`] (a path of a table is whatever the file
+//! says, and may be a megabyte long).
 
 use crate::error::{Error, Result};
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-/// Writes a file atomically: the content goes to `<path>.tmp` in the same
-/// directory, is flushed to disk, then renamed over `path`.
+/// Largest text file read (module docs: far above any real dataset's).
+pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+
+/// Longest line of a text file read (module docs).
+pub const MAX_LINE_BYTES: usize = 64 << 10;
+
+/// Largest image file read (module docs).
+pub const MAX_IMAGE_BYTES: u64 = 256 << 20;
+
+/// Characters kept at each end of a path or value quoted in a message by [`short`].
+pub const QUOTE_KEEP: usize = 100;
+
+/// A path or value as quoted in a message, warning or report: whole when it is at most
+/// `2 * QUOTE_KEEP + 20` characters long, else its first and last [`QUOTE_KEEP`] characters
+/// around `...(N characters)...`, so that a path of a megabyte read from a table cannot
+/// swell a message, `report.md` or `report.json`.
+pub fn short(s: &str) -> String {
+    let n = s.chars().count();
+    if n <= 2 * QUOTE_KEEP + 20 {
+        return s.to_string();
+    }
+    let head: String = s.chars().take(QUOTE_KEEP).collect();
+    let tail: String = s.chars().skip(n - QUOTE_KEEP).collect();
+    format!("{head}...({} characters)...{tail}", n - 2 * QUOTE_KEEP)
+}
+
+/// [`short`] of a path as displayed.
+pub fn short_path(path: &Path) -> String {
+    short(&path.display().to_string())
+}
+
+/// What a file type that is not a regular file is, in words.
+fn special_kind(ft: &std::fs::FileType) -> Option<&'static str> {
+    if ft.is_file() {
+        return None;
+    }
+    if ft.is_dir() {
+        return Some("a directory");
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if ft.is_fifo() {
+            return Some("a FIFO (named pipe)");
+        }
+        if ft.is_char_device() {
+            return Some("a character device");
+        }
+        if ft.is_block_device() {
+            return Some("a block device");
+        }
+        if ft.is_socket() {
+            return Some("a socket");
+        }
+    }
+    Some("not a regular file")
+}
+
+fn not_regular(path: &Path, what: &str, kind: &str) -> Error {
+    Error::invalid(
+        path,
+        format!(
+            "{kind}, not a regular file: refused as {what} (a stream or device could block the \
+             run or never end)"
+        ),
+    )
+}
+
+/// Opens `path` for reading when it is a regular file (symbolic links followed), with its
+/// length. A FIFO, device, socket or directory is refused before it is opened (opening a FIFO
+/// for reading blocks until a writer comes); on Linux the file is also opened non-blocking
+/// and checked again once open, so a FIFO swapped in between cannot block either. `what`
+/// names the input in the message ("camera file", "image").
+pub fn open_regular(path: &Path, what: &str) -> Result<(std::fs::File, u64)> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if let Some(kind) = special_kind(&meta.file_type()) {
+        return Err(not_regular(path, what, kind));
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = options.open(path).map_err(|e| Error::io(path, e))?;
+    let meta = file.metadata().map_err(|e| Error::io(path, e))?;
+    if let Some(kind) = special_kind(&meta.file_type()) {
+        return Err(not_regular(path, what, kind));
+    }
+    Ok((file, meta.len()))
+}
+
+/// Reads a whole regular file ([`open_regular`]) of at most `max` bytes; a longer one is an
+/// error naming the file, its size and the bound, and nothing beyond `max + 1` bytes is read
+/// (the length on disk may change or lie, as `/proc` files' does).
+pub fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
+    let (file, len) = open_regular(path, what)?;
+    let too_large = |size: String| {
+        Error::invalid(
+            path,
+            format!(
+                "{size}: larger than the {} {what} may be here (see sdf_slam::io)",
+                if max >= 1 << 20 {
+                    format!("{} MiB", max >> 20)
+                } else {
+                    format!("{max} bytes")
+                }
+            ),
+        )
+    };
+    if len > max {
+        return Err(too_large(format!("{len} bytes")));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    file.take(max + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > max {
+        return Err(too_large(format!("more than {max} bytes")));
+    }
+    Ok(bytes)
+}
+
+/// Reads an image file's bytes: a regular file of at most `max` bytes ([`MAX_IMAGE_BYTES`]
+/// unless the caller knows a tighter bound).
+pub fn read_image_bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
+    read_bounded(path, max.min(MAX_IMAGE_BYTES), "an image")
+}
+
+/// Reads a whole text file, naming it in the error: a regular file of at most
+/// [`MAX_TEXT_BYTES`], lines of at most [`MAX_LINE_BYTES`], UTF-8 (module docs).
+pub fn read_text(path: impl AsRef<Path>) -> Result<String> {
+    let path = path.as_ref();
+    let bytes = read_bounded(path, MAX_TEXT_BYTES, "a text file")?;
+    check_lines(path, &bytes)?;
+    String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+        Error::parse(path, line, "not UTF-8 text (a binary file?)")
+    })
+}
+
+/// An error naming the first line longer than [`MAX_LINE_BYTES`].
+fn check_lines(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut start = 0;
+    let mut line = 1;
+    loop {
+        let end = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |k| start + k);
+        if end - start > MAX_LINE_BYTES {
+            return Err(Error::parse(
+                path,
+                line,
+                format!(
+                    "line is longer than {} KiB ({} bytes{}): not a text file of this kind",
+                    MAX_LINE_BYTES >> 10,
+                    end - start,
+                    if end == bytes.len() {
+                        ", no line break"
+                    } else {
+                        ""
+                    }
+                ),
+            ));
+        }
+        if end == bytes.len() {
+            return Ok(());
+        }
+        start = end + 1;
+        line += 1;
+    }
+}
+
+/// Writes a file atomically: the content goes to a temporary sibling unique to this write
+/// ([`temp_path`]), is flushed to disk, then renamed over `path`.
 pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes))
 }
@@ -60,13 +262,26 @@ pub fn sync_parent(path: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
-/// The temporary sibling used by atomic writes: `dir/.name.tmp`.
+/// The temporary sibling used by atomic writes: `dir/.NAME.<pid>.<n>.tmp`, unique to this
+/// process (its id) and to this write (a counter), so that two writers of the same file, in
+/// one process or in two, never write into one temporary file: the last rename wins whole.
+/// A name longer than 200 bytes is cut (at a character boundary) to keep the temporary name
+/// within the 255 bytes file systems allow.
 pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp"))
+    if name.len() > 200 {
+        let mut cut = 200;
+        while !name.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        name.truncate(cut);
+    }
+    path.with_file_name(format!(".{name}.{}.{n}.tmp", std::process::id()))
 }
 
 /// A folder of its own under the system's temporary folder, `sdf_<name>_<pid>`, removed
@@ -153,12 +368,6 @@ pub fn records(text: &str) -> impl Iterator<Item = Record<'_>> {
     })
 }
 
-/// Reads a whole text file, naming it in the error.
-pub fn read_text(path: impl AsRef<Path>) -> Result<String> {
-    let path = path.as_ref();
-    std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
-}
-
 /// Parses a finite `f64` field, with an error naming file, line and field.
 pub fn parse_f64(path: &Path, line: usize, what: &str, field: &str) -> Result<f64> {
     match field.parse::<f64>() {
@@ -198,8 +407,133 @@ mod tests {
         write_atomic(&path, b"one").unwrap();
         write_atomic(&path, b"two").unwrap();
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "two");
-        assert!(!temp_path(&path).exists());
+        let names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("x.txt")]);
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn temporary_names_are_unique_per_process_and_write() {
+        let p = Path::new("dir/model.bpk");
+        let (a, b) = (temp_path(p), temp_path(p));
+        assert_ne!(a, b);
+        let pid = std::process::id().to_string();
+        for t in [&a, &b] {
+            let name = t.file_name().unwrap().to_str().unwrap();
+            assert!(
+                name.starts_with(".model.bpk.") && name.ends_with(".tmp"),
+                "{name}"
+            );
+            assert!(name.contains(&format!(".{pid}.")), "{name}");
+            assert_eq!(t.parent(), p.parent());
+        }
+        // Written from several threads at once: every write lands whole.
+        let dir = ScratchDir::new("io_temp_race").unwrap();
+        let target = dir.join("out.txt");
+        std::thread::scope(|s| {
+            for k in 0..8u8 {
+                let target = &target;
+                s.spawn(move || {
+                    for _ in 0..20 {
+                        write_atomic(target, &vec![b'a' + k; 4096]).unwrap();
+                    }
+                });
+            }
+        });
+        let bytes = std::fs::read(&target).unwrap();
+        assert_eq!(bytes.len(), 4096);
+        assert!(bytes.iter().all(|&b| b == bytes[0]));
+        // A 250-byte name still gives a temporary name the file system takes.
+        let long = dir.join("n".repeat(250));
+        write_atomic(&long, b"x").unwrap();
+        assert_eq!(std::fs::read(&long).unwrap(), b"x");
+    }
+
+    #[test]
+    fn text_inputs_are_bounded_and_special_files_refused() {
+        let dir = ScratchDir::new("io_bounds").unwrap();
+        let ok = dir.join("ok.txt");
+        std::fs::write(&ok, "a b\n# c\n").unwrap();
+        assert_eq!(read_text(&ok).unwrap(), "a b\n# c\n");
+        // A directory.
+        let e = read_text(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("a directory") && e.contains("not a regular file"),
+            "{e}"
+        );
+        // An endless device: refused before a byte is read.
+        #[cfg(unix)]
+        {
+            let e = read_text("/dev/zero").unwrap_err().to_string();
+            assert!(
+                e.contains("/dev/zero") && e.contains("character device"),
+                "{e}"
+            );
+            let e = read_image_bytes(Path::new("/dev/zero"), MAX_IMAGE_BYTES)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("character device") && e.contains("as an image"),
+                "{e}"
+            );
+        }
+        // A FIFO with no writer: refused at once, not waited on.
+        #[cfg(all(target_os = "linux", target_env = "gnu"))]
+        {
+            let fifo = dir.join("fifo.txt");
+            let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+            // SAFETY: a valid NUL-terminated path.
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+            let e = read_text(&fifo).unwrap_err().to_string();
+            assert!(e.contains("fifo.txt") && e.contains("FIFO"), "{e}");
+        }
+        // A line without end, and one too long among short ones.
+        let long = dir.join("long.txt");
+        std::fs::write(&long, "x".repeat(MAX_LINE_BYTES + 1)).unwrap();
+        let e = read_text(&long).unwrap_err().to_string();
+        assert!(
+            e.contains("long.txt:1") && e.contains("no line break"),
+            "{e}"
+        );
+        std::fs::write(
+            &long,
+            format!("a\nb\n{}\nc\n", "y".repeat(MAX_LINE_BYTES + 1)),
+        )
+        .unwrap();
+        let e = read_text(&long).unwrap_err().to_string();
+        assert!(e.contains("long.txt:3") && e.contains("64 KiB"), "{e}");
+        std::fs::write(&long, format!("{}\n", "y".repeat(MAX_LINE_BYTES))).unwrap();
+        assert!(read_text(&long).is_ok());
+        // Not UTF-8: the line named.
+        std::fs::write(&long, b"ok\nok\n\xff\xfe\n").unwrap();
+        let e = read_text(&long).unwrap_err().to_string();
+        assert!(e.contains("long.txt:3") && e.contains("UTF-8"), "{e}");
+        // Larger than the bound: refused from its length, nothing read.
+        let e = read_bounded(&ok, 3, "a table").unwrap_err().to_string();
+        assert!(
+            e.contains("ok.txt: 8 bytes: larger than the 3 bytes a table"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn long_paths_are_shortened_in_messages() {
+        assert_eq!(short("a/b.png"), "a/b.png");
+        let long = format!("{}{}", "a".repeat(500_000), "z".repeat(500_000));
+        let s = short(&long);
+        assert!(s.len() < 300, "{}", s.len());
+        assert!(s.starts_with(&"a".repeat(QUOTE_KEEP)) && s.ends_with(&"z".repeat(QUOTE_KEEP)));
+        assert!(s.contains("(999800 characters)"), "{s}");
+        // Character boundaries are kept.
+        let wide = "é".repeat(1000);
+        assert_eq!(
+            short(&wide).chars().filter(|&c| c == 'é').count(),
+            2 * QUOTE_KEEP
+        );
+        assert_eq!(short_path(Path::new(&long)), s);
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Depth images in metres, read from and written to 16-bit PNG.
 
 use crate::error::{Error, Result};
+use crate::imageio::ImageHeader;
 use image::{DynamicImage, ImageBuffer, Luma};
 use std::path::Path;
 
@@ -65,8 +66,15 @@ impl DepthImage {
 
     /// Decodes a 16-bit single-channel PNG with `metres = value / scale`
     /// (TUM RGB-D and NYUv2 samples: scale 5000). An 8-bit or colour image is an error.
+    /// A frame's depth image is read checked against its camera by
+    /// [`crate::dataset::FrameSpec::read_depth`].
     pub fn read_png(path: impl AsRef<Path>, scale: f64) -> Result<Self> {
         let buf = read_png_u16(path.as_ref())?;
+        Ok(Self::from_raw(buf, scale))
+    }
+
+    /// Depth in metres from raw 16-bit values, `metres = value / scale`.
+    pub fn from_raw(buf: ImageBuffer<Luma<u16>, Vec<u16>>, scale: f64) -> Self {
         let (width, height) = buf.dimensions();
         let inv = 1.0 / scale;
         let data = buf
@@ -74,11 +82,11 @@ impl DepthImage {
             .iter()
             .map(|&v| (v as f64 * inv) as f32)
             .collect();
-        Ok(DepthImage {
+        DepthImage {
             width,
             height,
             data,
-        })
+        }
     }
 
     /// Encodes as a 16-bit PNG with `value = round(metres * scale)`, atomically.
@@ -106,11 +114,30 @@ impl DepthImage {
 /// Decodes a 16-bit single-channel PNG as it is (raw sensor values); an 8-bit or colour image
 /// is an error naming the file.
 pub fn read_png_u16(path: &Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
-    let img = image::open(path).map_err(|e| match e {
-        image::ImageError::IoError(io) => Error::io(path, io),
-        other => Error::invalid(path, format!("cannot decode depth image: {other}")),
-    })?;
-    match img {
+    read_png_u16_with(path, crate::io::MAX_IMAGE_BYTES, &crate::imageio::any_image)
+}
+
+/// [`read_png_u16`] of a file of at most `max_bytes`, its header also checked by `check`
+/// before the pixels are decoded ([`crate::imageio::decode`]).
+pub fn read_png_u16_with(
+    path: &Path,
+    max_bytes: u64,
+    check: &dyn Fn(&ImageHeader) -> Result<()>,
+) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
+    let format = |h: &ImageHeader| {
+        check(h)?;
+        if (h.channels, h.bits) != (1, 16) {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "depth images must be 16-bit single-channel PNG, found {}",
+                    h.describe()
+                ),
+            ));
+        }
+        Ok(())
+    };
+    match crate::imageio::decode(path, max_bytes, &format)? {
         DynamicImage::ImageLuma16(buf) => Ok(buf),
         other => Err(Error::invalid(
             path,

@@ -2,6 +2,8 @@
 //! that greyscale and palette PNGs both give their stored indices.
 
 use crate::error::{Error, Result};
+use crate::imageio::{ImageHeader, any_image};
+use crate::io::MAX_IMAGE_BYTES;
 use std::path::Path;
 
 /// A row-major label image: NYUv2 40-class indices 0-39, 255 = void.
@@ -28,10 +30,37 @@ impl LabelImage {
         self.data[(y * self.width + x) as usize]
     }
 
-    /// Reads the raw indices of an 8-bit greyscale or palette PNG.
+    /// Reads the raw indices of an 8-bit greyscale or palette PNG (any values: see
+    /// [`LabelImage::read_classes`]).
     pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        let (info, buf) = decode_png(path)?;
+        Self::read_png_with(path.as_ref(), MAX_IMAGE_BYTES, &any_image)
+    }
+
+    /// Reads a label image of NYUv2's 40 classes: [`LabelImage::read_png`] with every value
+    /// checked to be a class 0-39 or 255 (void) ([`LabelImage::validate`]). Every reader of
+    /// ground-truth labels (`eval seg`, training, `slam --labels gt`) reads them so.
+    pub fn read_classes(path: impl AsRef<Path>) -> Result<Self> {
+        Self::read_classes_with(path.as_ref(), MAX_IMAGE_BYTES, &any_image)
+    }
+
+    /// [`LabelImage::read_classes`] of a file of at most `max_bytes` whose header `check`
+    /// also passes (a frame's size: [`crate::dataset::FrameSpec::read_labels`]).
+    pub fn read_classes_with(
+        path: &Path,
+        max_bytes: u64,
+        check: &dyn Fn(&ImageHeader) -> Result<()>,
+    ) -> Result<Self> {
+        let labels = Self::read_png_with(path, max_bytes, check)?;
+        labels.validate(crate::classes::NUM_CLASSES, path)?;
+        Ok(labels)
+    }
+
+    fn read_png_with(
+        path: &Path,
+        max_bytes: u64,
+        check: &dyn Fn(&ImageHeader) -> Result<()>,
+    ) -> Result<Self> {
+        let (info, buf) = decode_png(path, max_bytes, check)?;
         use png::{BitDepth, ColorType};
         match (info.color_type, info.bit_depth) {
             (ColorType::Grayscale | ColorType::Indexed, BitDepth::Eight) => {}
@@ -60,7 +89,7 @@ impl LabelImage {
     /// `(width, height, ids)` row-major.
     pub fn read_png_ids(path: impl AsRef<Path>) -> Result<(u32, u32, Vec<u16>)> {
         let path = path.as_ref();
-        let (info, buf) = decode_png(path)?;
+        let (info, buf) = decode_png(path, MAX_IMAGE_BYTES, &any_image)?;
         use png::{BitDepth, ColorType};
         let (w, h) = (info.width as usize, info.height as usize);
         let rows = buf.chunks(info.line_size).take(h);
@@ -116,12 +145,35 @@ impl LabelImage {
     }
 }
 
-/// Decodes a PNG as stored (no expansion): its header and raw rows.
-fn decode_png(path: &Path) -> Result<(png::OutputInfo, Vec<u8>)> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let decoder = png::Decoder::new(std::io::BufReader::new(file));
+/// Decodes a PNG as stored (no expansion): its header and raw rows. The file is read as every
+/// image is ([`crate::io::read_image_bytes`]: a regular file of at most `max_bytes`), its sides
+/// bounded and its header checked by `check` before the rows are allocated.
+fn decode_png(
+    path: &Path,
+    max_bytes: u64,
+    check: &dyn Fn(&ImageHeader) -> Result<()>,
+) -> Result<(png::OutputInfo, Vec<u8>)> {
+    let bytes = crate::io::read_image_bytes(path, max_bytes)?;
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     let bad = |e: png::DecodingError| Error::invalid(path, format!("cannot decode label PNG: {e}"));
     let mut reader = decoder.read_info().map_err(bad)?;
+    let header = {
+        let info = reader.info();
+        let channels = match info.color_type {
+            png::ColorType::Grayscale | png::ColorType::Indexed => 1,
+            png::ColorType::GrayscaleAlpha => 2,
+            png::ColorType::Rgb => 3,
+            png::ColorType::Rgba => 4,
+        };
+        ImageHeader {
+            width: info.width,
+            height: info.height,
+            channels,
+            bits: info.bit_depth as u8,
+        }
+    };
+    crate::imageio::check_sides(path, header.width, header.height)?;
+    check(&header)?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| Error::invalid(path, "label image too large"))?;

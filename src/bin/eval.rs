@@ -376,8 +376,9 @@ fn matching(a: MatchingArgs) -> Result<()> {
         })?;
         Some(refine)
     };
-    let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?;
     let cam = sdf_slam::camera::Camera::for_sequence(a.camera.as_deref(), &a.sequence)?;
+    // Every frame checked against the camera where it is read (size, channels, bit depth).
+    let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?.with_camera(&cam);
     let weights = match (&a.fpfdcnn, a.orb_only) {
         (_, true) => None,
         (Some(p), _) => Some(p.clone()),

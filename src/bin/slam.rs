@@ -337,6 +337,9 @@ fn main() -> Result<()> {
     let (labels, sdfcnn_ckpt, sdfcnn) = sdfcnn_source(&cli)?;
     let (sequence_path, sequence) = open_sequence(&cli)?;
     let camera = Camera::for_sequence(cli.camera.as_deref(), &sequence_path)?;
+    // Every frame is checked against the camera where it is read: one of another size is
+    // skipped, with its reason in the report.
+    let sequence = sequence.with_camera(&camera);
     let semantics: Box<dyn SemanticSource> = match (labels, sdfcnn) {
         (LabelsArg::Sdfcnn, Some(s)) => Box::new(s.with_camera(&camera)),
         (LabelsArg::Gt, _) => Box::new(GroundTruthSource::open(

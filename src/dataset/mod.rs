@@ -3,6 +3,7 @@
 pub mod augment;
 pub mod depth;
 pub mod fp_pairs;
+pub mod frame_check;
 pub mod labels;
 pub mod nyu;
 pub mod nyu_mat;
@@ -12,6 +13,7 @@ pub mod tum;
 
 pub use depth::DepthImage;
 pub use fp_pairs::{FpConfig, FpMatch, FpPair, fp_pair, fp_pairs};
+pub use frame_check::{FrameImage, FrameSpec};
 pub use labels::LabelImage;
 pub use nyu::{NyuDataset, NyuItem};
 pub use nyu_mat::NyuMat;

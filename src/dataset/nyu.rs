@@ -16,6 +16,7 @@
 //! `splits_{train,test}_1based.txt`).
 
 use super::depth::DepthImage;
+use super::frame_check::{FrameImage, FrameSpec};
 use super::labels::{LabelImage, VOID};
 use super::nyu_mat::NyuMat;
 use crate::error::{Error, Result};
@@ -68,6 +69,9 @@ pub struct NyuDataset {
     pub depth_scale: f64,
     map894: Option<Vec<u8>>,
     mat: Option<NyuMat>,
+    /// What every image must be ([`NyuDataset::expect_frames`]); `None`: any size, label and
+    /// depth images only checked against their colour image.
+    pub frame_spec: Option<FrameSpec>,
 }
 
 fn png_stems(dir: &Path) -> Result<Vec<String>> {
@@ -158,10 +162,12 @@ impl NyuDataset {
     /// split list.
     pub fn open(root: impl AsRef<Path>, split: Option<&Path>) -> Result<Self> {
         let root = root.as_ref().to_path_buf();
-        let mat = if root.is_file() {
-            Some(NyuMat::open(&root)?)
-        } else if root.is_dir() {
+        let mat = if root.is_dir() {
             None
+        } else if root.exists() {
+            // A FIFO or device is refused here, not handed to the HDF5 reader.
+            crate::io::open_regular(&root, "a NYUv2 .mat file")?;
+            Some(NyuMat::open(&root)?)
         } else {
             return Err(Error::invalid(&root, "no such dataset folder or .mat file"));
         };
@@ -222,6 +228,7 @@ impl NyuDataset {
             depth_scale: 5000.0,
             map894,
             mat,
+            frame_spec: None,
         })
     }
 
@@ -308,6 +315,13 @@ impl NyuDataset {
         Ok(out)
     }
 
+    /// From now on every image is checked where it is read against `spec` (the camera's size;
+    /// [`FrameSpec`]): an image of another size, channel count or bit depth is an error naming
+    /// the file. Training and `eval seg` call this once they know the camera.
+    pub fn expect_frames(&mut self, spec: FrameSpec) {
+        self.frame_spec = Some(spec);
+    }
+
     pub fn len(&self) -> usize {
         self.samples.len()
     }
@@ -328,7 +342,15 @@ impl NyuDataset {
             )
         })?;
         match (&s.source, &self.mat) {
-            (SampleSource::Mat(i), Some(mat)) => mat.load(*i),
+            (SampleSource::Mat(i), Some(mat)) => {
+                let item = mat.load(*i)?;
+                if let Some(spec) = &self.frame_spec {
+                    let (w, h) = item.rgb.dimensions();
+                    let header = crate::imageio::ImageHeader::of(w, h, image::ColorType::Rgb8);
+                    spec.check(&self.root, FrameImage::Colour, &header)?;
+                }
+                Ok(item)
+            }
             (SampleSource::Mat(_), None) => Err(Error::invalid(
                 &self.root,
                 format!("sample {} is a .mat image but this is a folder", s.id),
@@ -353,7 +375,11 @@ impl NyuDataset {
         labels_path: &Path,
         labels_894: bool,
     ) -> Result<NyuItem> {
-        let rgb = crate::imageio::read_rgb(rgb_path)?;
+        let spec = self.frame_spec.as_ref();
+        let rgb = match spec {
+            Some(s) => s.read_colour(rgb_path)?,
+            None => crate::imageio::read_rgb(rgb_path)?,
+        };
         let labels = if labels_894 {
             let (width, height, ids) = LabelImage::read_png_ids(labels_path)?;
             let map = self.map894.as_deref().unwrap_or(&[]);
@@ -365,9 +391,10 @@ impl NyuDataset {
                 data,
             }
         } else {
-            let labels = LabelImage::read_png(labels_path)?;
-            labels.validate(NUM_CLASSES, labels_path)?;
-            labels
+            match spec {
+                Some(s) => s.read_labels(labels_path)?,
+                None => LabelImage::read_classes(labels_path)?,
+            }
         };
         if (labels.width, labels.height) != rgb.dimensions() {
             return Err(Error::invalid(
@@ -383,7 +410,10 @@ impl NyuDataset {
         }
         let depth = match depth_path {
             Some(p) => {
-                let d = DepthImage::read_png(p, self.depth_scale)?;
+                let d = match spec {
+                    Some(s) => s.read_depth(p, self.depth_scale)?,
+                    None => DepthImage::read_png(p, self.depth_scale)?,
+                };
                 if (d.width, d.height) != rgb.dimensions() {
                     return Err(Error::invalid(
                         p,

@@ -5,6 +5,8 @@
 //! frame at a time, so sequences of thousands of 640x480 frames cost nothing to open.
 
 use super::depth::DepthImage;
+use super::frame_check::FrameSpec;
+use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
 use crate::io::{parse_f64, read_text, records};
@@ -78,6 +80,49 @@ pub struct TumSequence {
     pub config: TumConfig,
     pub frames: Vec<FrameInfo>,
     pub groundtruth: Option<Trajectory>,
+    /// What every frame's images must be (the camera's size: [`TumSequence::expect_camera`]);
+    /// `None`: images are read as they are, a depth image only checked against its colour
+    /// image.
+    pub frame_spec: Option<FrameSpec>,
+}
+
+/// Most frames a sequence's tables may list: a million, 9 hours at 30 Hz (TUM RGB-D's longest
+/// sequences have a few thousand, 7-Scenes' 1000; `synth` writes at most this many). Opening a
+/// sequence costs a few hundred bytes a frame before any image is read, so a table of
+/// millions of lines is refused rather than read.
+pub const MAX_SEQUENCE_FRAMES: usize = 1_000_000;
+
+/// Longest file name a table may give, bytes (Linux's PATH_MAX: no longer path can be opened).
+pub const MAX_PATH_BYTES: usize = 4096;
+
+/// A file name field of a table, checked to be a name a file can have.
+fn file_field<'a>(path: &Path, line: usize, field: &'a str) -> Result<&'a str> {
+    if field.len() > MAX_PATH_BYTES {
+        return Err(Error::parse(
+            path,
+            line,
+            format!(
+                "file name '{}' is {} bytes long, longer than any path can be ({MAX_PATH_BYTES})",
+                crate::io::short(field),
+                field.len()
+            ),
+        ));
+    }
+    Ok(field)
+}
+
+/// An error once a table lists more than [`MAX_SEQUENCE_FRAMES`] entries.
+fn check_count(path: &Path, line: usize, count: usize) -> Result<()> {
+    if count >= MAX_SEQUENCE_FRAMES {
+        return Err(Error::parse(
+            path,
+            line,
+            format!(
+                "more than {MAX_SEQUENCE_FRAMES} entries: longer than any sequence this reads                  (9 hours at 30 Hz)"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// A `timestamp filename` list (`rgb.txt`, `depth.txt`).
@@ -85,6 +130,7 @@ fn read_file_list(path: &Path) -> Result<Vec<(f64, String, usize)>> {
     let text = read_text(path)?;
     let mut out: Vec<(f64, String, usize)> = Vec::new();
     for rec in records(&text) {
+        check_count(path, rec.line, out.len())?;
         if rec.fields.len() < 2 {
             return Err(Error::parse(
                 path,
@@ -108,7 +154,8 @@ fn read_file_list(path: &Path) -> Result<Vec<(f64, String, usize)>> {
                 ),
             ));
         }
-        out.push((t, rec.fields[1].to_string(), rec.line));
+        let name = file_field(path, rec.line, rec.fields[1])?;
+        out.push((t, name.to_string(), rec.line));
     }
     Ok(out)
 }
@@ -163,10 +210,12 @@ impl TumSequence {
         let rgb_txt = root.join("rgb.txt");
         let assoc_txt = root.join("associations.txt");
         let depth_txt = root.join("depth.txt");
-        let frames = if config.use_associations_file && assoc_txt.is_file() {
+        // `exists`, not `is_file`: a table that is a FIFO or a folder is refused by name when
+        // read, not passed over.
+        let frames = if config.use_associations_file && assoc_txt.exists() {
             Self::read_associations(&root, &assoc_txt)?
         } else {
-            if !rgb_txt.is_file() && super::seven_scenes::list_frames(&root).is_ok() {
+            if !rgb_txt.exists() && super::seven_scenes::list_frames(&root).is_ok() {
                 return Err(Error::invalid(
                     &root,
                     format!(
@@ -176,14 +225,14 @@ impl TumSequence {
                     ),
                 ));
             }
-            if !rgb_txt.is_file() {
+            if !rgb_txt.exists() {
                 return Err(Error::invalid(
                     &root,
                     "no rgb.txt (nor associations.txt): not a TUM RGB-D sequence folder",
                 ));
             }
             let rgb = read_file_list(&rgb_txt)?;
-            if depth_txt.is_file() {
+            if depth_txt.exists() {
                 let depth = read_file_list(&depth_txt)?;
                 let ta: Vec<f64> = rgb.iter().map(|r| r.0).collect();
                 let tb: Vec<f64> = depth.iter().map(|d| d.0).collect();
@@ -217,7 +266,7 @@ impl TumSequence {
             ));
         }
         let gt_path = root.join("groundtruth.txt");
-        let groundtruth = if gt_path.is_file() {
+        let groundtruth = if gt_path.exists() {
             Some(Trajectory::read_tum(&gt_path)?)
         } else {
             None
@@ -227,6 +276,7 @@ impl TumSequence {
             config,
             frames,
             groundtruth,
+            frame_spec: None,
         })
     }
 
@@ -234,6 +284,7 @@ impl TumSequence {
         let text = read_text(path)?;
         let mut frames: Vec<FrameInfo> = Vec::new();
         for rec in records(&text) {
+            check_count(path, rec.line, frames.len())?;
             let f = &rec.fields;
             if f.len() < 4 {
                 return Err(Error::parse(
@@ -258,12 +309,26 @@ impl TumSequence {
             }
             frames.push(FrameInfo {
                 rgb_stamp: t_rgb,
-                rgb_path: root.join(f[1]),
+                rgb_path: root.join(file_field(path, rec.line, f[1])?),
                 depth_stamp: Some(t_depth),
-                depth_path: Some(root.join(f[3])),
+                depth_path: Some(root.join(file_field(path, rec.line, f[3])?)),
             });
         }
         Ok(frames)
+    }
+
+    /// From now on every frame's images are checked against `camera` where they are read
+    /// ([`FrameSpec`]: size, channels, bit depth): a frame that does not fit is an error
+    /// naming the file, what it is and what the camera expects. `slam`, training and `eval`
+    /// call this once they know the camera.
+    pub fn expect_camera(&mut self, camera: &Camera) {
+        self.frame_spec = Some(FrameSpec::of(camera));
+    }
+
+    /// [`TumSequence::expect_camera`], by value.
+    pub fn with_camera(mut self, camera: &Camera) -> Self {
+        self.expect_camera(camera);
+        self
     }
 
     /// Number of frames.
@@ -307,21 +372,34 @@ impl TumSequence {
             .and_then(|gt| gt.pose_at(stamp + self.config.gt_time_offset, self.config.max_gt_gap))
     }
 
-    /// Decodes frame `index`'s RGB image.
+    /// Decodes frame `index`'s RGB image (checked against the camera when one is expected:
+    /// [`TumSequence::expect_camera`]).
     pub fn load_rgb(&self, index: usize) -> Result<RgbImage> {
-        crate::imageio::read_rgb(&self.info(index)?.rgb_path)
+        let path = &self.info(index)?.rgb_path;
+        match &self.frame_spec {
+            Some(spec) => spec.read_colour(path),
+            None => crate::imageio::read_rgb(path),
+        }
     }
 
-    /// Decodes frame `index`'s RGB image as grayscale.
+    /// Decodes frame `index`'s RGB image as grayscale (checked as [`TumSequence::load_rgb`]).
     pub fn load_gray(&self, index: usize) -> Result<GrayImage> {
-        crate::imageio::read_gray(&self.info(index)?.rgb_path)
+        let path = &self.info(index)?.rgb_path;
+        match &self.frame_spec {
+            Some(spec) => spec.read_gray(path),
+            None => crate::imageio::read_gray(path),
+        }
     }
 
-    /// Decodes frame `index`'s depth image in metres (`None` without depth).
+    /// Decodes frame `index`'s depth image in metres (`None` without depth; checked as
+    /// [`TumSequence::load_rgb`]).
     pub fn load_depth(&self, index: usize) -> Result<Option<DepthImage>> {
-        match &self.info(index)?.depth_path {
-            Some(p) => DepthImage::read_png(p, self.config.depth_scale).map(Some),
-            None => Ok(None),
+        let Some(path) = &self.info(index)?.depth_path else {
+            return Ok(None);
+        };
+        match &self.frame_spec {
+            Some(spec) => spec.read_depth(path, self.config.depth_scale).map(Some),
+            None => DepthImage::read_png(path, self.config.depth_scale).map(Some),
         }
     }
 

@@ -64,6 +64,8 @@ pub(super) fn open_source(
         ));
     }
     let camera = Camera::for_sequence(src.camera.as_deref(), &src.path)?;
+    // Every frame checked against the camera where it is read (size, channels, bit depth).
+    seq.expect_camera(&camera);
     if !seq.has_depth() || seq.groundtruth.is_none() {
         return Err(Error::invalid(
             &src.path,
@@ -103,7 +105,7 @@ pub(super) fn add_sequence(
     let offset_train = train.frames.len();
     let offset_val = val.frames.len();
     let (first_train_pair, first_val_pair) = (train.pairs.len(), val.pairs.len());
-    for (i, f) in load_frames(seq, camera, cfg, size).into_iter().enumerate() {
+    for (i, f) in load_frames(seq, cfg, size).into_iter().enumerate() {
         let f = f?;
         if i < cut {
             train.frames.push(f)
@@ -197,10 +199,9 @@ fn no_pairs_reason(seq: &TumSequence, gaps: &[usize], homographies: bool) -> Opt
 
 /// Every frame of `seq` as stored (full resolution when cropping, else resized to
 /// `[height, width]`) with its Harris targets, decoded in parallel; an image that does not
-/// fit the camera is an error.
+/// fit the camera is an error ([`TumSequence::expect_camera`], set by [`open_source`]).
 fn load_frames(
     seq: &TumSequence,
-    camera: &Camera,
     cfg: &FpDataConfig,
     [height, width]: [usize; 2],
 ) -> Vec<Result<FrameEntry>> {
@@ -209,15 +210,6 @@ fn load_frames(
         .into_par_iter()
         .map(|i| {
             let gray = GrayF32::from_gray(&seq.load_gray(i)?);
-            if (gray.width, gray.height) != (camera.width as usize, camera.height as usize) {
-                return Err(Error::invalid(
-                    &seq.frames[i].rgb_path,
-                    format!(
-                        "image is {}x{} but the sequence's camera is {}x{}",
-                        gray.width, gray.height, camera.width, camera.height
-                    ),
-                ));
-            }
             let gray = if crop {
                 gray
             } else {

@@ -281,7 +281,7 @@ fn open_sequence(s: &DataSource) -> Result<Set> {
         depth_scale: s.depth_scale.unwrap_or(TumConfig::default().depth_scale),
         ..TumConfig::default()
     };
-    let seq = TumSequence::open_with(&s.path, config)?;
+    let mut seq = TumSequence::open_with(&s.path, config)?;
     if !seq.has_depth() {
         return Err(Error::invalid(
             &s.path,
@@ -306,9 +306,10 @@ fn open_sequence(s: &DataSource) -> Result<Set> {
         )
     })?;
     let first_rgb = &seq.frames[frames[0]].rgb_path;
-    let dims = image::image_dimensions(first_rgb)
-        .map_err(|e| Error::invalid(first_rgb, format!("cannot read the image size: {e}")))?;
-    check_camera(&camera, dims, first_rgb)?;
+    let header = crate::imageio::header(first_rgb)?;
+    check_camera(&camera, (header.width, header.height), first_rgb)?;
+    // Every frame checked against the camera where it is read (size, channels, bit depth).
+    seq.expect_camera(&camera);
     // A source whose depth is all missing would train nothing: an error before training
     // (usually the first frame answers).
     let mut valid = false;
@@ -350,11 +351,14 @@ fn open_nyu(s: &DataSource) -> Result<Set> {
     } else {
         Some(set.load(0)?.rgb.dimensions())
     };
+    // Every image is checked where it is read (size, channels, bit depth): against the
+    // camera, or without one, as a crop of NYUv2's 640x480 images.
     let focal = match source_camera(s)? {
         Some(camera) => {
             if let Some(dims) = first {
                 check_camera(&camera, dims, &set.root)?;
             }
+            set.expect_frames(crate::dataset::FrameSpec::of(&camera));
             Focal { fx: camera.fx }
         }
         None => {
@@ -367,6 +371,13 @@ fn open_nyu(s: &DataSource) -> Result<Set> {
                     ),
                 ));
             }
+            let min_width = (1..=640).find(|&w| nyu_fx_fits(w)).unwrap_or(640);
+            set.expect_frames(crate::dataset::FrameSpec::crops_of(
+                640,
+                480,
+                min_width,
+                min_width * 480 / 640,
+            ));
             Focal { fx: NYU_FX }
         }
     };

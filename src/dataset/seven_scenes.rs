@@ -22,6 +22,7 @@
 //! depth camera's coordinates.
 
 use super::depth::DepthImage;
+use super::frame_check::{FrameImage, FrameSpec};
 use crate::camera::{Camera, toml_error};
 use crate::error::{Error, Result};
 use crate::geometry::Pose;
@@ -239,7 +240,8 @@ pub fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<SevenScenesFrame>> {
             pose: dir.join(format!("frame-{digits}.pose.txt")),
         };
         for p in [&frame.depth, &frame.pose] {
-            if !p.is_file() {
+            // `exists`: a FIFO or folder of that name is refused by name when read.
+            if !p.exists() {
                 return Err(Error::invalid(
                     p,
                     format!(
@@ -271,16 +273,63 @@ pub fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<SevenScenesFrame>> {
     Ok(frames)
 }
 
+/// Largest camera position accepted, metres from the origin: 7-Scenes' rooms are a few
+/// metres across; a kilometre is beyond any indoor RGB-D recording.
+pub const MAX_POSITION: f64 = 1000.0;
+
+/// An error listing the frame numbers missing between the first and the last of `frames`
+/// (sorted): 7-Scenes numbers a sequence's frames without gaps, so a gap is an incomplete
+/// copy, and converting across it would make the frames on either side look consecutive to
+/// whatever tracks them. The frames on either side of a gap convert separately (`--first`,
+/// `--count`).
+fn check_numbering(src: &Path, frames: &[SevenScenesFrame]) -> Result<()> {
+    let gaps: Vec<(usize, usize)> = frames
+        .windows(2)
+        .filter(|w| w[1].number > w[0].number + 1)
+        .map(|w| (w[0].number + 1, w[1].number - 1))
+        .collect();
+    if gaps.is_empty() {
+        return Ok(());
+    }
+    let missing: usize = gaps.iter().map(|(a, b)| b - a + 1).sum();
+    let listed: Vec<String> = gaps
+        .iter()
+        .take(10)
+        .map(|&(a, b)| {
+            if a == b {
+                format!("{a}")
+            } else {
+                format!("{a}-{b}")
+            }
+        })
+        .collect();
+    Err(Error::invalid(
+        src,
+        format!(
+            "{missing} frame(s) missing from the numbering between frames {} and {}: {}{} (an \
+             incomplete copy? convert the frames on either side of a gap separately with \
+             --first and --count)",
+            frames[0].number,
+            frames[frames.len() - 1].number,
+            listed.join(", "),
+            if gaps.len() > 10 { ", ..." } else { "" }
+        ),
+    ))
+}
+
 /// Reads a 7-Scenes `pose.txt`: four rows of four numbers, a rigid camera-to-world
-/// transform (last row 0 0 0 1, an orthonormal rotation). Anything else is an error naming
-/// the file, and the line where one line is at fault.
+/// transform (last row 0 0 0 1, an orthonormal rotation, a position within
+/// [`MAX_POSITION`] of the origin). Anything else is an error naming the file, and the line
+/// where one line is at fault.
 pub fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
     let path = path.as_ref();
     let text = read_text(path)?;
     let mut rows: Vec<[f64; 4]> = Vec::new();
+    let mut lines: Vec<usize> = Vec::new();
     let mut last_line = 0;
     for rec in records(&text) {
         last_line = rec.line;
+        lines.push(rec.line);
         if rows.len() == 4 {
             return Err(Error::parse(path, rec.line, "more than four rows"));
         }
@@ -328,6 +377,27 @@ pub fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
             ),
         ));
     }
+    if let Some(k) = (0..3).find(|&k| rows[k][3].abs() > MAX_POSITION) {
+        return Err(Error::parse(
+            path,
+            lines[k],
+            format!(
+                "translation {:e} m is not a camera position in a room (at most \
+                 {MAX_POSITION} m from the origin)",
+                rows[k][3]
+            ),
+        ));
+    }
+    let t_norm = (0..3).map(|k| rows[k][3].powi(2)).sum::<f64>().sqrt();
+    if t_norm > MAX_POSITION {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "the camera is {t_norm:.1} m from the origin: not a camera position in a room \
+                 (at most {MAX_POSITION} m)"
+            ),
+        ));
+    }
     // Closed form (the matrix is a rotation to 1e-3, checked above), renormalised.
     let rotation = UnitQuaternion::new_normalize(
         UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)).into_inner(),
@@ -336,22 +406,13 @@ pub fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
     Ok(Pose::from_parts(t, rotation))
 }
 
-/// Reads a 7-Scenes depth image: 16-bit single-channel PNG of the depth camera's size.
+/// Reads a 7-Scenes depth image: 16-bit single-channel PNG of the depth camera's size
+/// (checked as every frame is: [`FrameSpec`]).
 pub fn read_depth_mm(path: impl AsRef<Path>, camera: &Camera) -> Result<Vec<u16>> {
     let path = path.as_ref();
-    let buf = super::depth::read_png_u16(path)?;
-    if buf.dimensions() != (camera.width, camera.height) {
-        return Err(Error::invalid(
-            path,
-            format!(
-                "depth image is {}x{}, the registration's depth camera {}x{}",
-                buf.width(),
-                buf.height(),
-                camera.width,
-                camera.height
-            ),
-        ));
-    }
+    let spec = FrameSpec::of(camera);
+    let check = |h: &crate::imageio::ImageHeader| spec.check(path, FrameImage::Depth, h);
+    let buf = super::depth::read_png_u16_with(path, spec.max_file_bytes(), &check)?;
     Ok(buf.into_raw())
 }
 
@@ -360,7 +421,8 @@ pub fn read_depth_mm(path: impl AsRef<Path>, camera: &Camera) -> Result<Vec<u16>
 pub struct ConvertOptions {
     /// Frames numbered below this are skipped.
     pub first: usize,
-    /// At most this many frames from `first` on (`None`: all).
+    /// This many frames from `first` on (`None`: all); more than the folder has from `first`
+    /// on is an error.
     pub count: Option<usize>,
     pub registration: Registration,
 }
@@ -393,10 +455,9 @@ pub fn convert(
     if options.count == Some(0) {
         return Err(Error::msg("a count of 0 frames converts nothing"));
     }
-    let frames: Vec<SevenScenesFrame> = list_frames(src)?
+    let mut frames: Vec<SevenScenesFrame> = list_frames(src)?
         .into_iter()
         .filter(|f| f.number >= options.first)
-        .take(options.count.unwrap_or(usize::MAX))
         .collect();
     if frames.is_empty() {
         return Err(Error::invalid(
@@ -404,6 +465,23 @@ pub fn convert(
             format!("no frame numbered {} or later", options.first),
         ));
     }
+    if let Some(count) = options.count {
+        if count > frames.len() {
+            return Err(Error::invalid(
+                src,
+                format!(
+                    "{count} frames asked for (--count) but the folder has {} from frame {} on \
+                     ({}..{})",
+                    frames.len(),
+                    options.first,
+                    frames[0].number,
+                    frames[frames.len() - 1].number
+                ),
+            ));
+        }
+        frames.truncate(count);
+    }
+    check_numbering(src, &frames)?;
     for list in [
         "rgb.txt",
         "depth.txt",
@@ -433,20 +511,18 @@ pub fn convert(
         depth: String,
         pose: Pose,
     }
+    // Every pose first (small files): one that cannot be right stops the conversion before
+    // anything is written.
+    let poses = frames
+        .iter()
+        .map(|f| read_pose(&f.pose))
+        .collect::<Result<Vec<Pose>>>()?;
     let mut rows = Vec::with_capacity(frames.len());
-    for (i, f) in frames.iter().enumerate() {
-        // Decoded once, so that a truncated or unreadable image is named here.
-        let (w, h) = crate::imageio::read_rgb(&f.colour)?.dimensions();
-        if (w, h) != (reg.colour.width, reg.colour.height) {
-            return Err(Error::invalid(
-                &f.colour,
-                format!(
-                    "colour image is {w}x{h}, the registration's colour camera {}x{}",
-                    reg.colour.width, reg.colour.height
-                ),
-            ));
-        }
-        let depth_pose = read_pose(&f.pose)?;
+    let colour = FrameSpec::of(&reg.colour);
+    for (i, (f, depth_pose)) in frames.iter().zip(poses).enumerate() {
+        // Decoded once, so that a truncated or unreadable image, or one that does not fit
+        // the registration's colour camera, is named here.
+        colour.read_colour(&f.colour)?;
         let mut depth = reg
             .register(&read_depth_mm(&f.depth, &reg.depth)?)
             .map_err(|e| Error::invalid(&f.depth, e.to_string()))?;
@@ -460,7 +536,7 @@ pub fn convert(
         let stamp = format!("{:.6}", f.stamp());
         let rgb_name = format!("rgb/{stamp}.png");
         let depth_name = format!("depth/{stamp}.png");
-        let bytes = std::fs::read(&f.colour).map_err(|e| Error::io(&f.colour, e))?;
+        let bytes = crate::io::read_image_bytes(&f.colour, colour.max_file_bytes())?;
         crate::io::write_atomic(out.join(&rgb_name), &bytes)?;
         depth.write_png(out.join(&depth_name), TUM_DEPTH_SCALE)?;
         rows.push(Row {
@@ -709,6 +785,21 @@ mod tests {
             "1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n1 0 0 0\n",
             ":5: more than four rows",
         );
+        // Positions no room holds.
+        bad(
+            "1 0 0 0\n0 1 0 1e300\n0 0 1 0\n0 0 0 1\n",
+            ":2: translation 1e300 m",
+        );
+        bad(
+            "1 0 0 -1500\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+            ":1: translation -1.5e3 m",
+        );
+        bad(
+            "1 0 0 600\n0 1 0 600\n0 0 1 600\n0 0 0 1\n",
+            "1039.2 m from the origin",
+        );
+        std::fs::write(&p, "1 0 0 999\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+        assert!(read_pose(&p).is_ok());
     }
 
     #[test]

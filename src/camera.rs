@@ -12,6 +12,10 @@ use std::path::Path;
 /// Largest image side a camera may describe: buffers per pixel are allocated from it.
 pub const MAX_SIDE: u32 = 16384;
 
+/// Focal lengths a camera may have: `fx` in image widths, `fy` in image heights (TUM's
+/// cameras: 0.81; 0.1 is a field of view of 157°, 100 one of 0.6°).
+pub const FOCAL_RANGE: (f64, f64) = (0.1, 100.0);
+
 /// Brown-Conrady lens distortion coefficients (OpenCV order k1, k2, p1, p2, k3).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -191,7 +195,8 @@ impl Camera {
         let file = sequence.join("camera.toml");
         match spec {
             Some(s) => Self::load(s),
-            None if file.is_file() => Self::from_file(&file),
+            // `exists`: a camera.toml that is a FIFO or a folder is refused, not passed over.
+            None if file.exists() => Self::from_file(&file),
             None => Ok(Self::tum_fr1()),
         }
     }
@@ -202,20 +207,43 @@ impl Camera {
         crate::io::write_atomic(path, text.as_bytes())
     }
 
-    /// Checks the intrinsics and size (what reading a camera file checks).
-    pub(crate) fn validate(&self) -> std::result::Result<(), String> {
-        let vals = [self.fx, self.fy, self.cx, self.cy];
-        if vals.iter().any(|v| !v.is_finite()) {
-            return Err("camera intrinsics must be finite numbers".into());
-        }
-        if self.fx <= 0.0 || self.fy <= 0.0 {
+    /// Checks that the camera can be a real one (what reading a camera file or a registration
+    /// checks, and what every preset passes); the message names the field:
+    ///
+    /// * every number finite; `width` and `height` 1 to [`MAX_SIDE`];
+    /// * `fx` between 0.1 and 100 image widths and `fy` between 0.1 and 100 image heights
+    ///   ([`FOCAL_RANGE`]: fields of view from 157° down to 0.6°; TUM's cameras have 0.81);
+    /// * the principal point (`cx`, `cy`) inside the image;
+    /// * a distortion that keeps the image in one piece: the radial distortion
+    ///   `r_d(r) = r (1 + k1 r² + k2 r⁴ + k3 r⁶)` increasing from the centre until it reaches
+    ///   the farthest image corner (sampled every thousandth of the corner's radius), and
+    ///   reaching it between a quarter and four times the corner's radius (the field of view
+    ///   neither shrunk nor stretched fourfold); the whole distortion, tangential terms
+    ///   included, invertible with a positive Jacobian over a 17x17 grid of the image
+    ///   ([`Distortion::undistort`] converging at every point).
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let d = &self.distortion;
+        let numbers = [
+            ("fx", self.fx),
+            ("fy", self.fy),
+            ("cx", self.cx),
+            ("cy", self.cy),
+            ("distortion.k1", d.k1),
+            ("distortion.k2", d.k2),
+            ("distortion.p1", d.p1),
+            ("distortion.p2", d.p2),
+            ("distortion.k3", d.k3),
+        ];
+        if let Some((name, v)) = numbers.iter().find(|(_, v)| !v.is_finite()) {
             return Err(format!(
-                "focal lengths must be positive (fx {}, fy {})",
-                self.fx, self.fy
+                "{name} = {v}: camera intrinsics and distortion coefficients must be finite numbers"
             ));
         }
         if self.width == 0 || self.height == 0 {
-            return Err("image width and height must be positive".into());
+            return Err(format!(
+                "width and height must be positive, got {}x{}",
+                self.width, self.height
+            ));
         }
         if self.width > MAX_SIDE || self.height > MAX_SIDE {
             return Err(format!(
@@ -223,12 +251,132 @@ impl Camera {
                 self.width, self.height
             ));
         }
+        let (lo, hi) = FOCAL_RANGE;
+        for (name, f, side, unit) in [
+            ("fx", self.fx, self.width, "image widths"),
+            ("fy", self.fy, self.height, "image heights"),
+        ] {
+            let rel = f / side as f64;
+            if !(lo..=hi).contains(&rel) {
+                return Err(format!(
+                    "{name} = {} px is {} {unit}: a focal length must be between {lo} and {hi} \
+                     {unit} (fields of view of 157° to 0.6°; TUM's cameras: 0.81)",
+                    num(f),
+                    num(rel)
+                ));
+            }
+        }
+        for (name, c, side, axis) in [
+            ("cx", self.cx, self.width, "wide"),
+            ("cy", self.cy, self.height, "high"),
+        ] {
+            let max = side as f64 - 0.5;
+            if !(-0.5..=max).contains(&c) {
+                return Err(format!(
+                    "{name} = {} puts the principal point outside the image ({side} pixels \
+                     {axis}: {name} must be between -0.5 and {max})",
+                    num(c)
+                ));
+            }
+        }
+        self.check_distortion()
+    }
+
+    /// The distortion part of [`Camera::validate`].
+    fn check_distortion(&self) -> std::result::Result<(), String> {
         let d = &self.distortion;
-        if [d.k1, d.k2, d.p1, d.p2, d.k3]
-            .iter()
-            .any(|v| !v.is_finite())
-        {
-            return Err("distortion coefficients must be finite numbers".into());
+        if d.is_zero() {
+            return Ok(());
+        }
+        let (w, h) = (self.width as f64 - 0.5, self.height as f64 - 0.5);
+        let normalised =
+            |u: f64, v: f64| Vector2::new((u - self.cx) / self.fx, (v - self.cy) / self.fy);
+        let corner = [(-0.5, -0.5), (w, -0.5), (-0.5, h), (w, h)]
+            .into_iter()
+            .map(|(u, v)| normalised(u, v).norm())
+            .fold(0.0, f64::max);
+        // The coefficient that moves the image corner most, named in the messages.
+        let dominant = || {
+            let r = corner;
+            [
+                ("k1", d.k1, d.k1.abs() * r * r),
+                ("k2", d.k2, d.k2.abs() * r.powi(4)),
+                ("k3", d.k3, d.k3.abs() * r.powi(6)),
+                ("p1", d.p1, 3.0 * d.p1.abs() * r),
+                ("p2", d.p2, 3.0 * d.p2.abs() * r),
+            ]
+            .into_iter()
+            .max_by(|a, b| a.2.total_cmp(&b.2))
+            .map(|(n, v, _)| format!("distortion.{n} = {}", num(v)))
+            .unwrap_or_default()
+        };
+        // Radial: r_d increasing from the centre until it reaches the corner, at an undistorted
+        // radius between a quarter and four times the corner's.
+        let radial = |r: f64| {
+            let r2 = r * r;
+            r * (1.0 + r2 * (d.k1 + r2 * (d.k2 + r2 * d.k3)))
+        };
+        let step = corner / 1000.0;
+        let mut previous = 0.0;
+        let mut reached = None;
+        for i in 1..=4000 {
+            let r = i as f64 * step;
+            let rd = radial(r);
+            if rd <= previous {
+                return Err(format!(
+                    "{}: the radial distortion folds back {:.0} % of the way to the image \
+                     corner (r_d stops increasing at r = {r:.4}), so two points of the scene \
+                     would land on one pixel: not a real lens's calibration",
+                    dominant(),
+                    100.0 * previous / corner
+                ));
+            }
+            if rd >= corner {
+                reached = Some(r);
+                break;
+            }
+            previous = rd;
+        }
+        match reached {
+            Some(r) if r >= corner / 4.0 => {}
+            Some(r) => {
+                return Err(format!(
+                    "{}: the image corner would show the ray an undistorted camera sees at \
+                     {} of the corner's radius (at least 0.25): the distortion squeezes the \
+                     field of view; not a real lens's calibration",
+                    dominant(),
+                    num(r / corner)
+                ));
+            }
+            None => {
+                return Err(format!(
+                    "{}: the image corner would show a ray an undistorted camera sees beyond 4 \
+                     times the corner's radius: the distortion stretches the field of view; \
+                     not a real lens's calibration",
+                    dominant()
+                ));
+            }
+        }
+        // The whole distortion (tangential terms too): invertible over the image.
+        const GRID: usize = 17;
+        for j in 0..GRID {
+            for i in 0..GRID {
+                let u = -0.5 + (w + 0.5) * i as f64 / (GRID - 1) as f64;
+                let v = -0.5 + (h + 0.5) * j as f64 / (GRID - 1) as f64;
+                let pd = normalised(u, v);
+                let pu = d.undistort(pd);
+                let back = (d.distort(pu) - pd).norm();
+                let det = d.jacobian(pu).determinant();
+                let scale_ok = pd.norm() < 0.1 * corner
+                    || (pu.norm() >= pd.norm() / 4.0 && pu.norm() <= pd.norm() * 4.0);
+                if !(back < 1e-6 * (1.0 + pd.norm()) && det > 0.0 && scale_ok) {
+                    return Err(format!(
+                        "{}: the distortion cannot be undone at pixel ({u:.0}, {v:.0}) (it \
+                         folds or tears the image there): not a real lens's calibration",
+                        dominant()
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -336,6 +484,16 @@ impl RayTable {
     }
 }
 
+/// A number as a message quotes it: as written for everyday magnitudes, in exponent form for
+/// the very large and very small (`1e30`, not 31 digits).
+fn num(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e7).contains(&v.abs()) {
+        format!("{}", (v * 1e6).round() / 1e6)
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// A TOML error with the file, and the line when the parser knows it.
 ///
 /// Public so that config readers outside the library (the `train` application's sweeps)
@@ -414,5 +572,117 @@ mod tests {
         let e = Camera::from_file(&bad).unwrap_err().to_string();
         assert!(e.contains("bad.toml:3"), "{e}");
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn presets_and_shipped_cameras_are_plausible() {
+        for name in ["fr1", "fr2", "fr3"] {
+            let c = Camera::preset(name).unwrap();
+            c.validate().unwrap();
+            // Resized as synth and training resize them.
+            for (w, h) in [(320, 240), (160, 120), (8, 6), (1280, 960)] {
+                c.resized(w, h).validate().unwrap();
+            }
+        }
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/cameras");
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            Camera::from_file(&p).unwrap_or_else(|e| panic!("{e}"));
+        }
+        // The 7-Scenes colour and depth cameras.
+        Camera::pinhole(640, 480, 527.0, 527.0, 323.0, 236.0)
+            .validate()
+            .unwrap();
+        Camera::pinhole(640, 480, 585.0, 585.0, 320.0, 240.0)
+            .validate()
+            .unwrap();
+    }
+
+    #[test]
+    fn implausible_cameras_are_refused_naming_the_field() {
+        let base = Camera::tum_fr1();
+        let check = |c: Camera, field: &str| {
+            let e = c.validate().unwrap_err();
+            assert!(e.starts_with(field), "{field}: {e}");
+        };
+        for (cx, cy, field) in [
+            (1e6, 255.3, "cx"),
+            (-1.0, 255.3, "cx"),
+            (640.0, 255.3, "cx"),
+            (318.6, -1e6, "cy"),
+            (318.6, 480.0, "cy"),
+        ] {
+            check(
+                Camera {
+                    cx,
+                    cy,
+                    ..base.clone()
+                },
+                field,
+            );
+        }
+        for (fx, fy, field) in [
+            (1e-30, 516.5, "fx"),
+            (1e30, 516.5, "fx"),
+            (63.0, 516.5, "fx"),
+            (64_001.0, 516.5, "fx"),
+            (517.3, 1e-30, "fy"),
+            (517.3, 1e30, "fy"),
+            (517.3, 0.0, "fy"),
+            (-517.3, 516.5, "fx"),
+        ] {
+            check(
+                Camera {
+                    fx,
+                    fy,
+                    ..base.clone()
+                },
+                field,
+            );
+        }
+        let with = |d: Distortion| Camera {
+            distortion: d,
+            ..base.clone()
+        };
+        let k = |k1, k2, k3| Distortion {
+            k1,
+            k2,
+            k3,
+            ..Distortion::default()
+        };
+        // Far too strong, either way; folding back inside the image; tangential tearing.
+        check(with(k(1e10, 0.0, 0.0)), "distortion.k1");
+        check(with(k(-1e10, 0.0, 0.0)), "distortion.k1");
+        check(with(k(0.0, -5.0, 0.0)), "distortion.k2");
+        check(with(k(0.0, 0.0, 1e10)), "distortion.k3");
+        check(with(k(-1.0, 0.0, 0.0)), "distortion.k1");
+        let p = |p1, p2| Distortion {
+            p1,
+            p2,
+            ..Distortion::default()
+        };
+        check(with(p(1e10, 0.0)), "distortion.p1");
+        check(with(p(0.0, -2.0)), "distortion.p2");
+        check(
+            with(Distortion {
+                k1: f64::NAN,
+                ..Distortion::default()
+            }),
+            "distortion.k1",
+        );
+        // Mild real-world distortions pass: barrel and pincushion of a few per cent.
+        with(k(-0.3, 0.1, 0.0)).validate().unwrap();
+        with(k(0.1, 0.0, 0.0)).validate().unwrap();
+        with(p(0.01, -0.01)).validate().unwrap();
+        // And a file names itself and the field.
+        let dir = crate::io::ScratchDir::new("cam_plausible").unwrap();
+        let f = dir.join("far.toml");
+        std::fs::write(
+            &f,
+            "width = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 1000000.0\ncy = 240.0\n",
+        )
+        .unwrap();
+        let e = Camera::from_file(&f).unwrap_err().to_string();
+        assert!(e.contains("far.toml") && e.contains("cx = 1000000"), "{e}");
     }
 }

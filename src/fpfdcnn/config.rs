@@ -156,6 +156,19 @@ fn upgrade_legacy(table: &mut toml::Table) -> std::result::Result<Vec<String>, S
     Ok(moved)
 }
 
+/// `optimizer.lr_steps` in strictly increasing epoch order: a schedule written out of order
+/// (or with one epoch twice) is a typo whose intent cannot be read back.
+pub(crate) fn check_lr_steps(steps: &[(usize, f64)]) -> std::result::Result<(), String> {
+    match steps.windows(2).find(|w| w[1].0 <= w[0].0) {
+        Some(w) => Err(format!(
+            "optimizer.lr_steps must list epochs in increasing order: [{}, {}] comes after \
+             [{}, {}]",
+            w[1].0, w[1].1, w[0].0, w[0].1
+        )),
+        None => Ok(()),
+    }
+}
+
 impl FpfdcnnTrainConfig {
     /// Parses and checks a config; errors name the file and line.
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
@@ -220,6 +233,15 @@ impl FpfdcnnTrainConfig {
         cfg.optimizer
             .validate()
             .map_err(|m| Error::invalid(path, m))?;
+        check_lr_steps(&cfg.optimizer.lr_steps).map_err(|m| Error::invalid(path, m))?;
+        if !legacy && cfg.data.sequences.is_empty() {
+            // Checked here, not only when the data are read, so that `--dry-run` says it.
+            return bad(
+                "[[data.sequences]] lists no training sequence: FPFDCNN trains on TUM-layout \
+                 sequences (path = \"...\")"
+                    .into(),
+            );
+        }
         cfg.loss.validate().map_err(|m| Error::invalid(path, m))?;
         cfg.data.validate().map_err(|m| Error::invalid(path, m))?;
         let [h, w] = cfg.data.size;
@@ -252,9 +274,10 @@ mod tests {
 
     const NEW: &str = "model = \"fpfdcnn\"\nepochs = 2\n[optimizer]\nlr = 0.0002\n\
         lr_steps = [[14, 0.00007]]\n[network]\ndescriptor_dim = 64\n[data]\nsize = [96, 128]\n\
-        pairs_per_epoch = 40\n";
+        pairs_per_epoch = 40\n[[data.sequences]]\npath = \"seq\"\n";
     const OLD: &str = "model = \"fpfdcnn\"\nepochs = 2\nheight = 96\nwidth = 128\n\
-        lr = 0.0002\nlr_steps = [[14, 0.00007]]\npairs_per_epoch = 40\ndescriptor_dim = 64\n";
+        lr = 0.0002\nlr_steps = [[14, 0.00007]]\npairs_per_epoch = 40\ndescriptor_dim = 64\n\
+        [[data.sequences]]\npath = \"seq\"\n";
 
     #[test]
     fn saved_configs_of_the_old_shape_still_read_new_ones_must_use_sections() {
@@ -275,6 +298,27 @@ mod tests {
         assert!(e.contains("both"), "{e}");
         let normalized = toml::to_string_pretty(&new).unwrap();
         assert_eq!(FpfdcnnTrainConfig::parse(&normalized, p).unwrap(), new);
+    }
+
+    #[test]
+    fn configs_without_sequences_or_with_unsorted_lr_steps_are_refused() {
+        let p = Path::new("c.toml");
+        let none = NEW.replace("[[data.sequences]]\npath = \"seq\"\n", "");
+        let e = FpfdcnnTrainConfig::parse(&none, p).unwrap_err().to_string();
+        assert!(
+            e.starts_with("c.toml") && e.contains("data.sequences"),
+            "{e}"
+        );
+        for steps in ["[[20, 0.001], [10, 0.0001]]", "[[10, 0.001], [10, 0.0001]]"] {
+            let text = NEW.replace("[[14, 0.00007]]", steps);
+            let e = FpfdcnnTrainConfig::parse(&text, p).unwrap_err().to_string();
+            assert!(
+                e.starts_with("c.toml") && e.contains("optimizer.lr_steps"),
+                "{e}"
+            );
+        }
+        let text = NEW.replace("[[14, 0.00007]]", "[[10, 0.001], [20, 0.0001]]");
+        assert!(FpfdcnnTrainConfig::parse(&text, p).is_ok());
     }
 
     /// The shift-consistency term crops half a cell off every side of the training crop, so

@@ -349,11 +349,19 @@ impl SynthConfig {
     /// Checks ranges; the message names the field.
     pub fn validate(&self) -> Result<()> {
         /// Frames of one sequence; the camera path is planned whole before rendering.
-        const MAX_FRAMES: usize = 1_000_000;
+        const MAX_FRAMES: usize = crate::dataset::tum::MAX_SEQUENCE_FRAMES;
+        /// Independent views of one scene for the NYU-layout set.
+        const MAX_VIEWS: usize = 10_000;
+        /// Images one run renders, all scenes together: ten million 640x480 renders take
+        /// days on a desktop CPU and fill terabytes.
+        const MAX_RENDERS: usize = 10_000_000;
         self.room.validate()?;
         let bad = |m: &str| Err(Error::msg(m.to_string()));
         if self.scenes == 0 || self.scenes > 100_000 {
-            return bad("scenes must be between 1 and 100000");
+            return Err(Error::msg(format!(
+                "scenes must be between 1 and 100000, got {}",
+                self.scenes
+            )));
         }
         if self.frames > MAX_FRAMES {
             return Err(Error::msg(format!(
@@ -421,6 +429,29 @@ impl SynthConfig {
                 "output.nyu_views_per_scene must be at least 1 when the NYU set is written",
             );
         }
+        if o.nyu_views_per_scene > MAX_VIEWS {
+            return Err(Error::msg(format!(
+                "output.nyu_views_per_scene must be at most {MAX_VIEWS} (the shipped training \
+                 set has 30), got {}",
+                o.nyu_views_per_scene
+            )));
+        }
+        // The whole run: every render of every scene (blurred frames average several).
+        let per_frame = if b.enabled { b.samples } else { 1 };
+        let per_scene = if o.sequence {
+            self.frames * per_frame
+        } else {
+            0
+        } + if o.nyu { o.nyu_views_per_scene } else { 0 };
+        let renders = self.scenes.saturating_mul(per_scene);
+        if renders > MAX_RENDERS {
+            return Err(Error::msg(format!(
+                "scenes x (frames x blur.samples + output.nyu_views_per_scene) = {renders} \
+                 renders, more than the {MAX_RENDERS} one run may make (days of computing and \
+                 terabytes of images): split the run (seeds) or lower scenes, frames or \
+                 nyu_views_per_scene"
+            )));
+        }
         Ok(())
     }
 }
@@ -456,6 +487,23 @@ mod tests {
         std::fs::write(&p, "fps = 0.001\n").unwrap();
         let e = SynthConfig::from_file(&p).unwrap_err().to_string();
         assert!(e.contains("fps"), "{e}");
+        for (text, field) in [
+            (
+                "[output]\nnyu_views_per_scene = 10001\n",
+                "nyu_views_per_scene",
+            ),
+            (
+                "[output]\nnyu_views_per_scene = 9223372036854775807\n",
+                "nyu_views_per_scene",
+            ),
+            ("scenes = 100000\nframes = 1000\n", "renders"),
+            ("scenes = 20\nframes = 1000000\n", "renders"),
+            ("scenes = 1000000\n", "scenes"),
+        ] {
+            std::fs::write(&p, text).unwrap();
+            let e = SynthConfig::from_file(&p).unwrap_err().to_string();
+            assert!(e.contains("c.toml") && e.contains(field), "{text}: {e}");
+        }
         std::fs::write(&p, "seed = 9\nframes = 12\n").unwrap();
         let c = SynthConfig::from_file(&p).unwrap();
         assert_eq!((c.seed, c.frames, c.scenes), (9, 12, 1));

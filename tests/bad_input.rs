@@ -1,7 +1,11 @@
 //! Hostile input as a standing test: a corpus of malformed inputs per input kind (TUM text
 //! files, images, SLAM / training / synthesis / sweep configs, camera files, checkpoints,
-//! trajectories, command-line arguments) run through the binaries (`slam`, `eval`, `train`,
-//! `synth`, `bench`). Every case must end in
+//! trajectories, 7-Scenes folders, command-line arguments) run through the binaries (`slam`,
+//! `eval`, `train`, `synth`, `bench`, `dataset`). Classes: unbounded reads (FIFOs, devices,
+//! oversized tables and lines), frames that do not fit the camera in the middle of a
+//! sequence, cameras and data that cannot be right (principal point off the image, absurd
+//! focal lengths and distortion, poses kilometres away, gaps in a numbering). Every case must
+//! end in
 //! a clean error: an exit code other than 0 and 101 (panic) and not a signal (abort), no
 //! "panicked at" or failed allocation, a message naming the file (and its line where the
 //! parser knows it), and files already in the output folder left as they were. After the
@@ -81,6 +85,7 @@ fn bin(name: &str) -> &'static str {
         "train" => env!("CARGO_BIN_EXE_train"),
         "synth" => env!("CARGO_BIN_EXE_synth"),
         "bench" => env!("CARGO_BIN_EXE_bench"),
+        "dataset" => env!("CARGO_BIN_EXE_dataset"),
         other => panic!("no binary {other}"),
     }
 }
@@ -246,6 +251,167 @@ fn not_compiled() -> &'static str {
     }
 }
 
+/// The fixture's frames as listed by its `associations.txt`: (colour, depth) file names.
+fn fixture_frames() -> Vec<(String, String)> {
+    std::fs::read_to_string(fixture().join("associations.txt"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            (f[1].to_string(), f[3].to_string())
+        })
+        .collect()
+}
+
+/// In a copy of the fixture at `dir/seq`, frame `index`'s colour image replaced by one of
+/// `w x h` pixels.
+fn colour_of_size(dir: &Path, index: usize, w: u32, h: u32) {
+    let seq = dir.join("seq");
+    if !seq.exists() {
+        copy_dir(&fixture(), &seq);
+    }
+    let (rgb, _) = &fixture_frames()[index];
+    image::RgbImage::from_pixel(w, h, image::Rgb([90, 120, 150]))
+        .save(seq.join(rgb))
+        .unwrap();
+}
+
+/// In a copy of the fixture at `dir/seq`, frame `index`'s depth image replaced by a 16-bit
+/// one of `w x h` pixels.
+fn depth_of_size(dir: &Path, index: usize, w: u32, h: u32) {
+    let seq = dir.join("seq");
+    if !seq.exists() {
+        copy_dir(&fixture(), &seq);
+    }
+    let (_, depth) = &fixture_frames()[index];
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_pixel(w, h, image::Luma([5000]))
+        .save(seq.join(depth))
+        .unwrap();
+}
+
+/// A named pipe with no writer: reading it would block forever.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn mkfifo(path: &Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let _ = std::fs::remove_file(path);
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(
+        unsafe { libc::mkfifo(c.as_ptr(), 0o600) },
+        0,
+        "mkfifo {}",
+        path.display()
+    );
+}
+
+/// The fixture sequence with a `groundtruth.txt` of 65 MiB (sparse: nothing is written).
+fn huge_ground_truth(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    let f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(dir.join("seq/groundtruth.txt"))
+        .unwrap();
+    f.set_len(65 << 20).unwrap();
+}
+
+/// The fixture sequence whose `associations.txt` lists a million and one frames (17 MB).
+fn million_associations(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    let mut text = String::with_capacity(18 << 20);
+    for i in 0..1_000_001u64 {
+        use std::fmt::Write;
+        let _ = writeln!(text, "{i} r/{i} {i} d/{i}");
+    }
+    std::fs::write(dir.join("seq/associations.txt"), text).unwrap();
+}
+
+/// The fixture sequence without `associations.txt`, line 5 of `rgb.txt` naming a file of a
+/// megabyte.
+fn megabyte_line(dir: &Path) {
+    garble(dir, "rgb.txt", 5);
+    std::fs::remove_file(dir.join("seq/associations.txt")).unwrap();
+    let p = dir.join("seq/rgb.txt");
+    let text = std::fs::read_to_string(&p).unwrap().replace(
+        "garbage line",
+        &format!("1305031229.60 rgb/{}.png", "a".repeat(1 << 20)),
+    );
+    std::fs::write(&p, text).unwrap();
+}
+
+/// The fixture sequence with line 3 of `associations.txt` naming a colour file of 5000 bytes.
+fn long_file_name(dir: &Path) {
+    copy_dir(&fixture(), &dir.join("seq"));
+    let p = dir.join("seq/associations.txt");
+    let text = std::fs::read_to_string(&p).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let f: Vec<String> = lines[2].split_whitespace().map(String::from).collect();
+    lines[2] = format!("{} rgb/{}.png {} {}", f[0], "b".repeat(5000), f[2], f[3]);
+    std::fs::write(&p, lines.join("\n")).unwrap();
+}
+
+/// Writes the fixture's first `n` frames as a 7-Scenes folder `dir/src` numbered 0..n
+/// (colour copied, depth in millimetres, the ground-truth pose as a 4x4 matrix), skipping the
+/// numbers in `skip`.
+fn seven_scenes_folder(dir: &Path, n: usize, skip: &[usize]) {
+    let seq = sdf_slam::dataset::TumSequence::open(fixture()).unwrap();
+    let out = dir.join("src");
+    std::fs::create_dir_all(&out).unwrap();
+    for i in (0..n).filter(|i| !skip.contains(i)) {
+        let frame = seq.load_frame(i).unwrap();
+        let stem = out.join(format!("frame-{i:06}"));
+        std::fs::copy(
+            &seq.frames[i].rgb_path,
+            format!("{}.color.png", stem.display()),
+        )
+        .unwrap();
+        let depth = frame.depth.unwrap();
+        let mm: Vec<u16> = depth
+            .data
+            .iter()
+            .map(|&z| {
+                if z > 0.0 {
+                    (z as f64 * 1000.0).round() as u16
+                } else {
+                    0
+                }
+            })
+            .collect();
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(depth.width, depth.height, mm)
+            .unwrap()
+            .save(format!("{}.depth.png", stem.display()))
+            .unwrap();
+        let m = frame.gt_pose.unwrap().to_homogeneous();
+        let text: String = (0..4)
+            .map(|r| {
+                let row: Vec<String> = (0..4).map(|c| format!("{:.9e}", m[(r, c)])).collect();
+                row.join("\t") + "\n"
+            })
+            .collect();
+        std::fs::write(format!("{}.pose.txt", stem.display()), text).unwrap();
+    }
+}
+
+/// A 7-Scenes folder of four frames whose frame 1 sits 1e300 m from the origin.
+fn seven_scenes_far_pose(dir: &Path) {
+    seven_scenes_folder(dir, 4, &[]);
+    std::fs::write(
+        dir.join("src/frame-000001.pose.txt"),
+        "1 0 0 1e300\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    )
+    .unwrap();
+}
+
+/// A 7-Scenes folder of frames 0, 1, 3, 4: frame 2 missing.
+fn seven_scenes_gap(dir: &Path) {
+    seven_scenes_folder(dir, 5, &[2]);
+}
+
+/// A 7-Scenes folder of four frames.
+fn seven_scenes_four(dir: &Path) {
+    seven_scenes_folder(dir, 4, &[]);
+}
+
 fn corpus() -> Vec<Case> {
     let fx = fixture().display().to_string();
     let slam = |name, extra: &[&str], expect: &[&'static str]| {
@@ -267,7 +433,7 @@ fn corpus() -> Vec<Case> {
         )
     };
     let trajectory = "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n3.0 0 1 0 0 0 0 1\n";
-    vec![
+    let mut cases = vec![
         // SLAM configs: sizes and values bounded before anything is allocated.
         slam("topdown size", &["--config", "c.toml"], &["c.toml", "map.topdown_size"])
             .file("c.toml", "[map]\ntopdown_size = 200000\n"),
@@ -478,7 +644,162 @@ fn corpus() -> Vec<Case> {
         case("synth --frames 1e12", "synth", &["--frames", "1000000000000", "--out", "out"], &["frames must be at most"]),
         case("synth field of the wrong type", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:1"])
             .file("s.toml", "frames = \"many\"\n"),
+        case("synth 100 million views a scene", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "nyu_views_per_scene"])
+            .file("s.toml", "[output]\nnyu_views_per_scene = 100000000\n"),
+        case("synth 100 scenes of a million frames", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "renders"])
+            .file("s.toml", "scenes = 100\nframes = 1000000\n"),
+        // Reads with no bound: endless devices, oversized tables, lines and file names.
+        slam("SLAM config /dev/zero", &["--config", "/dev/zero"], &["/dev/zero", "character device"]),
+        slam("camera /dev/zero", &["--camera", "/dev/zero"], &["/dev/zero", "character device"]),
+        slam("camera file is a folder", &["--camera", "cam.toml"], &["cam.toml", "a directory"])
+            .setup(|dir| std::fs::create_dir_all(dir.join("cam.toml")).unwrap()),
+        case("trajectory /dev/zero", "eval", &["ate", "/dev/zero", "est.txt"], &["/dev/zero", "character device"])
+            .file("est.txt", trajectory),
+        case("training config /dev/urandom", "train", &["--config", "/dev/urandom", "--dry-run"], &["/dev/urandom", "character device"]),
+        case("groundtruth.txt of 65 MiB", "slam", &["--sequence", "seq", "--labels", "none", "--features", "orb", "--out", "out"], &["groundtruth.txt", "64 MiB"])
+            .setup(huge_ground_truth),
+        case("associations.txt of a million and one frames", "slam", &["--sequence", "seq", "--labels", "none", "--features", "orb", "--max-frames", "5", "--out", "out"], &["associations.txt:1000001", "1000000 entries"])
+            .setup(million_associations),
+        case("a file name of a megabyte", "slam", &["--sequence", "seq", "--labels", "none", "--features", "orb", "--out", "out"], &["rgb.txt:5", "64 KiB"])
+            .setup(megabyte_line),
+        case("a file name of 5000 bytes", "slam", &["--sequence", "seq", "--labels", "none", "--features", "orb", "--out", "out"], &["associations.txt:3", "longer than any path", "bbbb...("])
+            .setup(long_file_name),
+        // Frames that do not fit the camera, in the middle of a sequence: evaluation and
+        // training stop on them, naming the file (`slam` skips them: see below).
+        case("matching on a 1280x960 frame", "eval", &["matching", "--sequence", "seq", "--orb-only", "--gap", "1", "--pairs", "2"], &["seq/rgb/", "1280x960", "640x480"])
+            .setup(|dir| colour_of_size(dir, 1, 1280, 960)),
+        case("matching on a 3000x20 depth image", "eval", &["matching", "--sequence", "seq", "--orb-only", "--gap", "1", "--pairs", "2"], &["seq/depth/", "3000x20", "640x480"])
+            .setup(|dir| depth_of_size(dir, 4, 3000, 20)),
+        case("FPFDCNN training on a 320x240 frame", "train", &["--config", "t.toml", "--out", "out"], &["seq/rgb/", "320x240", "640x480"])
+            .file("t.toml", &training_on_copy(true))
+            .setup(|dir| colour_of_size(dir, 5, 320, 240)),
+        case("FPFDCNN training on a grey frame", "train", &["--config", "t.toml", "--out", "out"], &["seq/rgb/", "single-channel", "8-bit RGB"])
+            .file("t.toml", &training_on_copy(true))
+            .setup(|dir| {
+                copy_dir(&fixture(), &dir.join("seq"));
+                image::GrayImage::new(640, 480)
+                    .save(dir.join("seq").join(&fixture_frames()[7].0))
+                    .unwrap();
+            }),
+        // Cameras that cannot be right.
+        slam("principal point a million pixels away", &["--camera", "cam.toml"], &["cam.toml", "cx = 1000000", "outside the image"])
+            .file("cam.toml", "width = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 1000000.0\ncy = 240.0\n"),
+        slam("principal point above the image", &["--camera", "cam.toml"], &["cam.toml", "cy = -300"])
+            .file("cam.toml", "width = 640\nheight = 480\nfx = 500.0\nfy = 500.0\ncx = 320.0\ncy = -300.0\n"),
+        slam("focal length 1e-30", &["--camera", "cam.toml"], &["cam.toml", "fx = 1e-30 px", "image widths"])
+            .file("cam.toml", &camera("").replace("fx = 500.0", "fx = 1e-30")),
+        slam("focal length 1e30", &["--camera", "cam.toml"], &["cam.toml", "fy = 1e30 px", "image heights"])
+            .file("cam.toml", &camera("").replace("fy = 500.0", "fy = 1e30")),
+        slam("distortion k1 1e10", &["--camera", "cam.toml"], &["cam.toml", "distortion.k1 = 1e10", "squeezes"])
+            .file("cam.toml", &camera("[distortion]\nk1 = 1e10\n")),
+        slam("distortion p2 1e10", &["--camera", "cam.toml"], &["cam.toml", "distortion.p2"])
+            .file("cam.toml", &camera("[distortion]\np2 = 1e10\n")),
+        slam("distortion folding inside the image", &["--camera", "cam.toml"], &["cam.toml", "distortion.k2", "folds back"])
+            .file("cam.toml", &camera("[distortion]\nk2 = -6.0\n")),
+        // 7-Scenes folders that cannot be right.
+        case("7-Scenes pose 1e300 m away", "dataset", &["seven-scenes", "src", "--out", "out"], &["frame-000001.pose.txt:1", "1e300"])
+            .setup(seven_scenes_far_pose),
+        case("7-Scenes folder with a frame missing", "dataset", &["seven-scenes", "src", "--out", "out"], &["src", "missing from the numbering", "frames 0 and 4: 2 "])
+            .setup(seven_scenes_gap),
+        case("7-Scenes --count beyond the frames", "dataset", &["seven-scenes", "src", "--out", "out", "--count", "100"], &["100 frames asked for (--count)", "has 4"])
+            .setup(seven_scenes_four),
+        // Training configs `--dry-run` must refuse.
+        case("FPFDCNN config without sequences", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "data.sequences"])
+            .file("t.toml", &no_sequences()),
+        case("FPFDCNN lr_steps out of order", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "optimizer.lr_steps"])
+            .file("t.toml", &tiny_training_config("lr = 0.001", "lr = 0.001\nlr_steps = [[20, 0.0001], [10, 0.00001]]")),
+        case("SDFCNN lr_steps out of order", "train", &["--config", "t.toml", "--out", "out", "--dry-run"], &["t.toml", "optimizer.lr_steps"])
+            .file("t.toml", &smoke_config("sdfcnn_tiny.toml", "lr_steps = [[40, 0.0003]]", "lr_steps = [[40, 0.0003], [40, 0.0001]]")),
+    ];
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    cases.extend(fifo_cases(&fx));
+    cases
+}
+
+/// Inputs that are named pipes with no writer: each must be refused, not waited on.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn fifo_cases(fx: &str) -> Vec<Case> {
+    let slam = |name, extra: &[&str], expect: &[&'static str]| {
+        let mut args = vec!["--sequence", fx, "--labels", "none", "--features", "orb"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", "out"]);
+        case(name, "slam", &args, expect)
+    };
+    vec![
+        slam(
+            "SLAM config a FIFO",
+            &["--config", "c.toml"],
+            &["c.toml", "FIFO"],
+        )
+        .setup(|dir| mkfifo(&dir.join("c.toml"))),
+        slam(
+            "camera a FIFO",
+            &["--camera", "cam.toml"],
+            &["cam.toml", "FIFO"],
+        )
+        .setup(|dir| mkfifo(&dir.join("cam.toml"))),
+        case(
+            "trajectory a FIFO",
+            "eval",
+            &["ate", "gt.txt", "gt.txt"],
+            &["gt.txt", "FIFO"],
+        )
+        .setup(|dir| mkfifo(&dir.join("gt.txt"))),
+        case(
+            "associations.txt a FIFO",
+            "eval",
+            &[
+                "matching",
+                "--sequence",
+                "seq",
+                "--orb-only",
+                "--gap",
+                "1",
+                "--pairs",
+                "2",
+            ],
+            &["associations.txt", "FIFO"],
+        )
+        .setup(|dir| {
+            copy_dir(&fixture(), &dir.join("seq"));
+            mkfifo(&dir.join("seq/associations.txt"));
+        }),
+        case(
+            "matching on a depth image that is a FIFO",
+            "eval",
+            &[
+                "matching",
+                "--sequence",
+                "seq",
+                "--orb-only",
+                "--gap",
+                "1",
+                "--pairs",
+                "2",
+            ],
+            &["seq/depth/", "FIFO"],
+        )
+        .setup(|dir| {
+            copy_dir(&fixture(), &dir.join("seq"));
+            mkfifo(&dir.join("seq").join(&fixture_frames()[0].1));
+        }),
+        case(
+            "training config a FIFO",
+            "train",
+            &["--config", "t.toml", "--dry-run"],
+            &["t.toml", "FIFO"],
+        )
+        .setup(|dir| mkfifo(&dir.join("t.toml"))),
     ]
+}
+
+/// The FPFDCNN smoke config with its one `[[data.sequences]]` table left out.
+fn no_sequences() -> String {
+    let block = format!(
+        "[[data.sequences]]\npath = \"{}/datasets/fixtures/tum_fr1_rpy_head10\"\ncamera = \"fr1\"\n",
+        env!("CARGO_MANIFEST_DIR")
+    );
+    tiny_training_config(&block, "")
 }
 
 /// Peak resident memory of the largest child waited for, bytes.
@@ -578,4 +899,170 @@ fn every_malformed_input_is_a_clean_error() {
         );
     }
     let _ = std::fs::remove_dir_all(&root);
+}
+
+/// Waits for a child at most `limit`; kills it past that (a hang is a failure, not a stall).
+fn wait_at_most(
+    mut child: std::process::Child,
+    limit: std::time::Duration,
+) -> std::process::Output {
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "still running after {limit:?}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Frames of another size (and, on Linux, a depth image that is a FIFO) in the middle of a
+/// sequence: `slam` skips each one, says so, and lists it with its reason in `report.json`
+/// and `report.md`; the other frames are processed and the run ends normally.
+#[test]
+fn slam_skips_frames_that_do_not_fit_the_camera_with_their_reason() {
+    let dir = sdf_slam::io::ScratchDir::new("bad_input_skip").unwrap();
+    colour_of_size(&dir, 2, 1, 1);
+    colour_of_size(&dir, 4, 320, 240);
+    colour_of_size(&dir, 6, 3000, 20);
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    mkfifo(&dir.join("seq").join(&fixture_frames()[8].1));
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    depth_of_size(&dir, 8, 1280, 960);
+    let child = Command::new(bin("slam"))
+        .args([
+            "--sequence",
+            "seq",
+            "--labels",
+            "none",
+            "--features",
+            "orb",
+            "--out",
+            "out",
+        ])
+        .current_dir(&dir)
+        .env("RUST_BACKTRACE", "0")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = wait_at_most(child, std::time::Duration::from_secs(300));
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    assert!(text.contains("(4 skipped)"), "{text}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/report.json")).unwrap())
+            .unwrap();
+    let skipped = report["frames_skipped"]
+        .as_array()
+        .unwrap_or_else(|| panic!("{report}"));
+    let frames = fixture_frames();
+    let expect: [(usize, String, &str); 4] = [
+        (2, frames[2].0.clone(), "is 1x1 but the camera is 640x480"),
+        (
+            4,
+            frames[4].0.clone(),
+            "is 320x240 but the camera is 640x480",
+        ),
+        (
+            6,
+            frames[6].0.clone(),
+            "is 3000x20 but the camera is 640x480",
+        ),
+        (
+            8,
+            frames[8].1.clone(),
+            if cfg!(all(target_os = "linux", target_env = "gnu")) {
+                "FIFO"
+            } else {
+                "is 1280x960"
+            },
+        ),
+    ];
+    assert_eq!(skipped.len(), expect.len(), "{skipped:?}");
+    for (s, (index, file, why)) in skipped.iter().zip(&expect) {
+        assert_eq!(s[0].as_u64(), Some(*index as u64), "{s}");
+        let reason = s[1].as_str().unwrap();
+        assert!(
+            reason.contains(file.as_str()) && reason.contains(why),
+            "{index}: {reason}"
+        );
+    }
+    let md = std::fs::read_to_string(dir.join("out/report.md")).unwrap();
+    assert!(md.contains("is 320x240 but the camera is 640x480"), "{md}");
+    assert_eq!(report["frames_processed"].as_u64(), Some(6), "{report}");
+}
+
+/// Training and evaluation read their data through the same frame check: a frame of another
+/// size in a TUM sequence or a NYUv2 folder is an error naming it (crops of NYUv2's images
+/// stay accepted), and label values outside the 40 classes and void are refused.
+#[test]
+fn training_data_is_checked_frame_by_frame() {
+    use sdf_slam::dataset::LabelImage;
+    use sdf_slam::sdfcnn::data::{DataSource, Set};
+    let dir = sdf_slam::io::ScratchDir::new("bad_input_sets").unwrap();
+    // A TUM sequence (SDFCNN depth source, `eval seg --data SEQ`).
+    colour_of_size(&dir, 4, 3000, 20);
+    let source = DataSource {
+        camera: Some("fr1".into()),
+        ..DataSource::folder(dir.join("seq"))
+    };
+    let set = Set::open(&source).unwrap();
+    for j in 0..set.len() {
+        match set.load(j) {
+            Ok(_) => assert_ne!(j, 4),
+            Err(e) => {
+                let e = e.to_string();
+                assert!(
+                    j == 4 && e.contains(&fixture_frames()[4].0) && e.contains("3000x20"),
+                    "{j}: {e}"
+                );
+            }
+        }
+    }
+    // A NYUv2 folder: one image 320x240 among 640x480 ones and a 625x468 crop.
+    let nyu = dir.join("nyu");
+    copy_dir(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("datasets/fixtures/nyuv2"),
+        &nyu,
+    );
+    image::RgbImage::new(320, 240)
+        .save(nyu.join("000464_rgb.png"))
+        .unwrap();
+    let set = Set::open(&DataSource::folder(&nyu)).unwrap();
+    let mut refused = 0;
+    for j in 0..set.len() {
+        if let Err(e) = set.load(j) {
+            let e = e.to_string();
+            assert!(e.contains("000464_rgb.png") && e.contains("320x240"), "{e}");
+            refused += 1;
+        }
+    }
+    assert_eq!((set.len(), refused), (3, 1));
+    // Label values outside 0-39 and 255, as `eval seg` and `slam --labels gt` read them.
+    let labels = dir.join("labels.png");
+    for (value, ok) in [
+        (0u8, true),
+        (39, true),
+        (255, true),
+        (40, false),
+        (254, false),
+    ] {
+        image::GrayImage::from_pixel(8, 6, image::Luma([value]))
+            .save(&labels)
+            .unwrap();
+        match LabelImage::read_classes(&labels) {
+            Ok(l) => assert!(ok && l.get(7, 5) == value),
+            Err(e) => assert!(
+                !ok && e.to_string().contains(&format!("label {value}")),
+                "{e}"
+            ),
+        }
+    }
 }

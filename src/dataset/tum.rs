@@ -118,7 +118,8 @@ fn check_count(path: &Path, line: usize, count: usize) -> Result<()> {
             path,
             line,
             format!(
-                "more than {MAX_SEQUENCE_FRAMES} entries: longer than any sequence this reads                  (9 hours at 30 Hz)"
+                "more than {MAX_SEQUENCE_FRAMES} entries: longer than any sequence this reads (9 \
+                 hours at 30 Hz)"
             ),
         ));
     }

@@ -166,7 +166,5 @@ fn train_config_errors_name_the_line() {
         .output()
         .unwrap();
     assert!(String::from_utf8_lossy(&out.stderr).contains("no trainer"));
-    let out = Command::new(env!("CARGO_BIN_EXE_train")).output().unwrap();
-    assert!(!out.status.success(), "--config is required");
     std::fs::remove_dir_all(&dir).ok();
 }

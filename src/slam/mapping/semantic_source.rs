@@ -209,7 +209,7 @@ impl GroundTruthSource {
                 format!("no label image within {} s of {stamp:.6}", self.max_diff),
             )
         })?;
-        LabelImage::read_png(path)
+        LabelImage::read_classes(path)
     }
 
     /// The exact depth of a stamp, if the sequence has exact depth.

@@ -75,7 +75,7 @@ pub fn write_ply(path: impl AsRef<Path>, points: &[MapPoint], ascii: bool) -> Re
 pub fn read_ply(path: impl AsRef<Path>) -> Result<Vec<MapPoint>> {
     let path = path.as_ref();
     let bad = |m: String| Error::invalid(path, m);
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let (file, _) = crate::io::open_regular(path, "a PLY file")?;
     let mut r = std::io::BufReader::new(file);
     let mut line = String::new();
     let mut next = |r: &mut std::io::BufReader<std::fs::File>| -> Result<String> {

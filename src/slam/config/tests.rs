@@ -23,6 +23,26 @@ fn defaults_round_trip_and_errors_name_fields() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("map.topdown_size") && e.contains("8192"), "{e}");
+    // Settings that size work per frame or keyframe are bounded.
+    for (section, field, value, said) in [
+        (
+            "map",
+            "refuse_per_keyframe",
+            "1001",
+            "map.refuse_per_keyframe",
+        ),
+        ("map", "min_views", "5000", "map.min_views"),
+        ("labels", "min_votes", "100000", "labels.min_votes"),
+        ("pnp", "min_inliers", "501", "pnp.min_inliers"),
+        ("matcher", "window", "1e9", "matcher.window"),
+        ("matcher", "wide_window", "5000.0", "matcher.wide_window"),
+    ] {
+        let text = format!("[{section}]\n{field} = {value}\n");
+        let e = SlamConfig::parse(&text, Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(said), "{field} = {value}: {e}");
+    }
     for (field, value) in [
         ("fpfdcnn_smoothing", "-1.0"),
         ("fpfdcnn_smoothing", "1e5"),

@@ -40,6 +40,31 @@ impl SlamConfig {
             "features.fpfdcnn_border",
         )?;
         count(self.pnp.max_iterations, 1, 1_000_000, "pnp.max_iterations")?;
+        // Work per keyframe or per frame that no real run needs this much of.
+        count(
+            self.map.refuse_per_keyframe,
+            0,
+            1000,
+            "map.refuse_per_keyframe",
+        )?;
+        count(self.map.min_views as usize, 0, 1000, "map.min_views")?;
+        count(self.labels.min_votes as usize, 0, 1000, "labels.min_votes")?;
+        count(
+            self.pnp.min_inliers,
+            0,
+            self.features.top_k,
+            "pnp.min_inliers (at most features.top_k)",
+        )?;
+        for (v, name) in [
+            (self.matcher.window, "matcher.window"),
+            (self.matcher.wide_window, "matcher.wide_window"),
+        ] {
+            if v > MAX_WINDOW_PX {
+                return Err(format!(
+                    "{name} must be at most {MAX_WINDOW_PX} px (the search radius), got {v}"
+                ));
+            }
+        }
         count(
             self.pnp.refine_iterations,
             0,
@@ -348,6 +373,9 @@ fn pos(v: f64, name: &str) -> std::result::Result<(), String> {
         Err(format!("{name} must be a positive number, got {v}"))
     }
 }
+
+/// The largest matcher search radius, pixels (far beyond any image side it searches).
+const MAX_WINDOW_PX: f32 = 4096.0;
 
 /// A count that sizes allocations or loops, bounded before anything runs.
 fn count(v: usize, lo: usize, hi: usize, name: &str) -> std::result::Result<(), String> {

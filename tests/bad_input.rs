@@ -358,37 +358,8 @@ fn seven_scenes_folder(dir: &Path, n: usize, skip: &[usize]) {
     let out = dir.join("src");
     std::fs::create_dir_all(&out).unwrap();
     for i in (0..n).filter(|i| !skip.contains(i)) {
-        let frame = seq.load_frame(i).unwrap();
         let stem = out.join(format!("frame-{i:06}"));
-        std::fs::copy(
-            &seq.frames[i].rgb_path,
-            format!("{}.color.png", stem.display()),
-        )
-        .unwrap();
-        let depth = frame.depth.unwrap();
-        let mm: Vec<u16> = depth
-            .data
-            .iter()
-            .map(|&z| {
-                if z > 0.0 {
-                    (z as f64 * 1000.0).round() as u16
-                } else {
-                    0
-                }
-            })
-            .collect();
-        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(depth.width, depth.height, mm)
-            .unwrap()
-            .save(format!("{}.depth.png", stem.display()))
-            .unwrap();
-        let m = frame.gt_pose.unwrap().to_homogeneous();
-        let text: String = (0..4)
-            .map(|r| {
-                let row: Vec<String> = (0..4).map(|c| format!("{:.9e}", m[(r, c)])).collect();
-                row.join("\t") + "\n"
-            })
-            .collect();
-        std::fs::write(format!("{}.pose.txt", stem.display()), text).unwrap();
+        common::write_seven_scenes_frame(&seq, i, &stem, 0);
     }
 }
 

@@ -28,41 +28,8 @@ fn seven_scenes_folder(dir: &Path) -> (PathBuf, Vec<Pose>) {
     std::fs::create_dir_all(&out).unwrap();
     let mut poses = Vec::new();
     for i in 0..seq.len() {
-        let frame = seq.load_frame(i).unwrap();
         let stem = out.join(format!("frame-{:06}", FIRST_NUMBER + i));
-        std::fs::copy(
-            &seq.frames[i].rgb_path,
-            format!("{}.color.png", stem.display()),
-        )
-        .unwrap();
-        let depth = frame.depth.unwrap();
-        let mm: Vec<u16> = depth
-            .data
-            .iter()
-            .map(|&z| {
-                if z > 0.0 {
-                    (z as f64 * 1000.0).round() as u16
-                } else {
-                    NO_READING
-                }
-            })
-            .collect();
-        let img: ImageBuffer<Luma<u16>, Vec<u16>> =
-            ImageBuffer::from_raw(depth.width, depth.height, mm).unwrap();
-        img.save(format!("{}.depth.png", stem.display())).unwrap();
-        let pose = frame.gt_pose.unwrap();
-        let m = pose.to_homogeneous();
-        let text: String = (0..4)
-            .map(|r| {
-                (0..4)
-                    .map(|c| format!("{:.9e}", m[(r, c)]))
-                    .collect::<Vec<_>>()
-                    .join("\t")
-                    + "\n"
-            })
-            .collect();
-        std::fs::write(format!("{}.pose.txt", stem.display()), text).unwrap();
-        poses.push(pose);
+        poses.push(common::write_seven_scenes_frame(&seq, i, &stem, NO_READING));
     }
     (out, poses)
 }

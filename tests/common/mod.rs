@@ -60,3 +60,46 @@ pub fn write_tiny_sdfcnn(dir: &Path, model: Sdfcnn) {
     .unwrap();
     std::fs::write(dir.join("config.toml"), TINY_SDFCNN_TOML).unwrap();
 }
+
+/// Writes frame `i` of `seq` as the 7-Scenes files of `stem`: `STEM.color.png` (copied),
+/// `STEM.depth.png` (millimetres, `no_reading` where the sensor has none) and `STEM.pose.txt`
+/// (the ground-truth pose as a 4x4 matrix). Returns the pose written.
+pub fn write_seven_scenes_frame(
+    seq: &sdf_slam::dataset::TumSequence,
+    i: usize,
+    stem: &Path,
+    no_reading: u16,
+) -> sdf_slam::geometry::Pose {
+    let frame = seq.load_frame(i).unwrap();
+    std::fs::copy(
+        &seq.frames[i].rgb_path,
+        format!("{}.color.png", stem.display()),
+    )
+    .unwrap();
+    let depth = frame.depth.unwrap();
+    let mm: Vec<u16> = depth
+        .data
+        .iter()
+        .map(|&z| {
+            if z > 0.0 {
+                (z as f64 * 1000.0).round() as u16
+            } else {
+                no_reading
+            }
+        })
+        .collect();
+    image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(depth.width, depth.height, mm)
+        .unwrap()
+        .save(format!("{}.depth.png", stem.display()))
+        .unwrap();
+    let pose = frame.gt_pose.unwrap();
+    let m = pose.to_homogeneous();
+    let text: String = (0..4)
+        .map(|r| {
+            let row: Vec<String> = (0..4).map(|c| format!("{:.9e}", m[(r, c)])).collect();
+            row.join("\t") + "\n"
+        })
+        .collect();
+    std::fs::write(format!("{}.pose.txt", stem.display()), text).unwrap();
+    pose
+}

@@ -7,15 +7,20 @@
 #   - depth (eval seg): δ<1.25, REL, RMS; the median scale the prediction needs (sensor depth /
 #     prediction, per image), its 10-90 % spread over the images, δ<1.25 after that scale;
 #   - monocular SLAM (slam --depth predicted): Sim(3) ATE, the Sim(3) scale (1 = metric) and
-#     the share of map points within 5 cm of the sensor's surface.
+#     the share of map points within 5 cm of the sensor's surface;
+#   - the camera height anchor: the same monocular run given the camera's height above the
+#     floor that the RGB-D run of the same frames measures (slam --camera-height).
 # Figures on frames of a training scene are a different row (docs/results.md).
 #
 #   scripts/generalisation.sh [kitchen|tum ...]        (default: both)
 #
 # Environment: SHARED (default ../shared/data) holds the real scenes (scripts/get_data.sh);
-# OUT (default runs/generalisation) the runs and the table (OUT/table.md); BACKEND (default flex);
+# OUT (default runs/generalisation) the runs and the table (OUT/<recipe>_table.md, <recipe> the
+# configs' name without the scene: sdfcnn_without by default); BACKEND (default flex);
 # EPOCHS overrides the recipes' epochs (for a quick trial of the protocol only); BIN names a
-# folder of already built binaries (default: build them into target/release).
+# folder of already built binaries (default: build them into target/release); RECIPE the
+# configs' common prefix, `RECIPE_<scene>.toml` (default
+# configs/train/generalisation/sdfcnn_without), to score another recipe the same way.
 # A scene's training resumes where it stopped; a finished one is not trained again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,6 +28,7 @@ cd "$(dirname "$0")/.."
 SHARED=${SHARED:-../shared/data}
 OUT=${OUT:-runs/generalisation}
 BACKEND=${BACKEND:-flex}
+RECIPE=${RECIPE:-configs/train/generalisation/sdfcnn_without}
 scenes=("$@")
 [ ${#scenes[@]} -gt 0 ] || scenes=(kitchen tum)
 
@@ -50,16 +56,17 @@ scene_args() {
 py_field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
 
 mkdir -p "$OUT"
-table=$OUT/table.md
+name=$(basename "$RECIPE")
+table=$OUT/${name}_table.md
 {
-    echo "| scene left out (epoch kept) | frames | depth δ<1.25 | REL | median scale needed (10-90 %) | δ<1.25 after it | segment | mono Sim(3) ATE | scale | map within 5 cm |"
-    echo "|---|---|---|---|---|---|---|---|---|---|"
+    echo "| scene left out (epoch kept) | frames | depth δ<1.25 | REL | median scale needed (10-90 %) | δ<1.25 after it | segment | mono Sim(3) ATE | scale | map within 5 cm | camera height (RGB-D floor) | with it: scale, map within 5 cm |"
+    echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 } > "$table"
 
 for scene in "${scenes[@]}"; do
     scene_args "$scene"
-    cfg=configs/train/generalisation/sdfcnn_without_$scene.toml
-    run=$OUT/sdfcnn_without_$scene
+    cfg=${RECIPE}_$scene.toml
+    run=$OUT/${name}_$scene
     resume=()
     [ -f "$run/checkpoints/last.json" ] && resume=(--resume)
     epochs=()
@@ -73,17 +80,29 @@ for scene in "${scenes[@]}"; do
 
     "$bin/eval" seg --checkpoint "$ckpt" --backend "$BACKEND" --data "$SEQ" --camera "$CAM" \
         --frames "${DEPTH_FRAMES[0]}" "${DEPTH_FRAMES[1]}" --every "${DEPTH_FRAMES[2]}" \
-        --json "$OUT/${scene}_depth.json"
-    j=$OUT/${scene}_depth.json
+        --json "$OUT/${name}_${scene}_depth.json"
+    j=$OUT/${name}_${scene}_depth.json
     depth_cells=$(py_field "$j" "'%.3f | %.3f | %.2f (%.2f-%.2f) | %.3f' % (d['depth']['delta1'], d['depth']['rel'], d['scale']['median'], d['scale']['p10'], d['scale']['p90'], d['scale']['rescaled']['delta1'])")
 
     for seg in "${SLAM_SEGMENTS[@]}"; do
         read -r first count <<< "$seg"
-        mono=$OUT/${scene}_mono_${first}
-        "$bin/slam" --sequence "$SEQ" --camera "$CAM" --first "$first" --max-frames "$count" \
-            --depth predicted --labels sdfcnn --sdfcnn "$ckpt" --backend "$BACKEND" --out "$mono"
+        mono=$OUT/${name}_${scene}_mono_${first}
+        run_slam() {
+            "$bin/slam" --sequence "$SEQ" --camera "$CAM" --first "$first" --max-frames "$count" \
+                --labels sdfcnn --sdfcnn "$ckpt" --backend "$BACKEND" "$@"
+        }
+        run_slam --depth predicted --out "$mono"
         slam_cells=$(py_field "$mono/report.json" "'%.4f m | %.3f | %.1f %%' % (d['ate']['stats']['rmse'], d['ate']['scale'], 100 * d['map_accuracy']['position_accuracy'])")
-        echo "| $scene ($best) | ${DEPTH_FRAMES[0]}-$((DEPTH_FRAMES[1] - 1)) every ${DEPTH_FRAMES[2]} | $depth_cells | $first-$((first + count - 1)) | $slam_cells |" >> "$table"
+        # The camera height anchor, the sensor's map as the tape measure: the camera's height
+        # above the floor of the RGB-D map of the same frames, given to the monocular run.
+        run_slam --depth sensor --out "$OUT/${name}_${scene}_rgbd_${first}"
+        height=$(py_field "$OUT/${name}_${scene}_rgbd_${first}/report.json" "'%.3f' % d['scale']['floor']['camera_height'] if d['scale'].get('floor') else ''")
+        anchor_cells="floor not seen | –"
+        if [ -n "$height" ]; then
+            run_slam --depth predicted --camera-height "$height" --out "${mono}_height"
+            anchor_cells="$height m | $(py_field "${mono}_height/report.json" "'%.3f, %.1f %%' % (d['ate']['scale'], 100 * d['map_accuracy']['position_accuracy']) + ('' if d['scale'].get('applied') else ' (floor not seen in the monocular map)')")"
+        fi
+        echo "| $scene ($best) | ${DEPTH_FRAMES[0]}-$((DEPTH_FRAMES[1] - 1)) every ${DEPTH_FRAMES[2]} | $depth_cells | $first-$((first + count - 1)) | $slam_cells | $anchor_cells |" >> "$table"
     done
 done
 cat "$table"

@@ -1,5 +1,6 @@
 //! One error type for the whole crate: every message names the file (and line or
-//! frame) it is about, so a user can fix their input without reading our code.
+//! frame) it is about, so a user can fix their input without reading our code. A path
+//! thousands of characters long is shown shortened ([`crate::io::short_path`]).
 
 use std::path::{Path, PathBuf};
 
@@ -7,21 +8,21 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A file could not be opened, read or written.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {source}", crate::io::short_path(path))]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
     /// A text file has a malformed line (1-based line number).
-    #[error("{}:{line}: {msg}", path.display())]
+    #[error("{}:{line}: {msg}", crate::io::short_path(path))]
     Parse {
         path: PathBuf,
         line: usize,
         msg: String,
     },
     /// A file is readable but its content is unusable (wrong image format, size...).
-    #[error("{}: {msg}", path.display())]
+    #[error("{}: {msg}", crate::io::short_path(path))]
     Invalid { path: PathBuf, msg: String },
     /// A value could not be written as JSON (its message is serde_json's).
     #[error(transparent)]

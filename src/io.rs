@@ -57,6 +57,46 @@ pub fn short(s: &str) -> String {
     format!("{head}...({} characters)...{tail}", n - 2 * QUOTE_KEEP)
 }
 
+/// The 1-based line where TOML `text` sets `dotted` (`section.key`, the section possibly
+/// dotted itself): the first `key = ...` under `[section]`. `None` when it is not written
+/// there (a default, or an inline table).
+pub fn toml_key_line(text: &str, dotted: &str) -> Option<usize> {
+    let (section, key) = dotted.rsplit_once('.')?;
+    let mut current = "";
+    for (i, line) in text.lines().enumerate() {
+        let t = line.trim();
+        if let Some(h) = t.strip_prefix('[').filter(|_| !t.starts_with("[[")) {
+            current = h.split(']').next().unwrap_or("").trim();
+            continue;
+        }
+        if current == section
+            && let Some(rest) = t.strip_prefix(key)
+            && rest.trim_start().starts_with('=')
+        {
+            return Some(i + 1);
+        }
+    }
+    None
+}
+
+/// The line of the first `section.key` that `message` names and `text` sets
+/// ([`toml_key_line`]), so a range error can point at the line to fix.
+pub fn message_key_line(text: &str, message: &str) -> Option<usize> {
+    message
+        .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '.'))
+        .filter(|w| w.contains('.') && w.starts_with(|c: char| c.is_ascii_lowercase()))
+        .find_map(|w| toml_key_line(text, w.trim_end_matches('.')))
+}
+
+/// A configuration's range error: at the line that sets the key the message names, else at
+/// the file.
+pub fn config_error(path: &Path, text: &str, message: String) -> Error {
+    match message_key_line(text, &message) {
+        Some(line) => Error::parse(path, line, message),
+        None => Error::invalid(path, message),
+    }
+}
+
 /// [`short`] of a path as displayed.
 pub fn short_path(path: &Path) -> String {
     short(&path.display().to_string())
@@ -388,6 +428,21 @@ pub fn parse_f64(path: &Path, line: usize, what: &str, field: &str) -> Result<f6
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_range_error_points_at_the_line_that_sets_the_key() {
+        let text = "seed = 1\n[room]\nheight = [2.0, 1.0]\n\n[motion]\n# a comment\nview_height = [0.3, 3.0]\n";
+        assert_eq!(toml_key_line(text, "room.height"), Some(3));
+        assert_eq!(toml_key_line(text, "motion.view_height"), Some(7));
+        assert_eq!(toml_key_line(text, "motion.height"), None);
+        assert_eq!(toml_key_line(text, "seed"), None);
+        let m = "motion.view_height = [0.3, 3.0] must satisfy motion.clearance (0.3) <= min";
+        assert_eq!(message_key_line(text, m), Some(7));
+        let e = config_error(Path::new("s.toml"), text, m.to_string()).to_string();
+        assert!(e.starts_with("s.toml:7: motion.view_height"), "{e}");
+        let e = config_error(Path::new("s.toml"), text, "scenes must be positive".into());
+        assert!(e.to_string().starts_with("s.toml: scenes"), "{e}");
+    }
 
     #[test]
     fn records_skip_comments_and_blanks() {

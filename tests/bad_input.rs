@@ -418,6 +418,14 @@ fn corpus() -> Vec<Case> {
             .file("c.toml", "[multiview]\nrange = nan\n"),
         slam("no PnP iterations", &["--config", "c.toml"], &["c.toml", "pnp.max_iterations"])
             .file("c.toml", "[pnp]\nmax_iterations = 0\n"),
+        // A camera height must be a positive finite number of metres under 10.
+        slam("negative camera height", &["--camera-height", "-1.2"], &["--camera-height", "under 10"]),
+        slam("zero camera height", &["--camera-height", "0"], &["--camera-height", "positive"]),
+        slam("NaN camera height", &["--camera-height", "NaN"], &["--camera-height", "NaN"]),
+        slam("tall camera", &["--camera-height", "12"], &["--camera-height", "12"]),
+        slam("camera height not a number", &["--camera-height", "tall"], &["--camera-height", "tall"]),
+        slam("camera height in the config", &["--config", "c.toml"], &["c.toml", "scale.camera_height"])
+            .file("c.toml", "[scale]\ncamera_height = 25.0\n"),
         slam("ORB scale 1", &["--config", "c.toml"], &["c.toml", "features.orb_scale_factor"])
             .file("c.toml", "[features]\norb_scale_factor = 1.0\n"),
         slam("ORB scale 0.5", &["--config", "c.toml"], &["c.toml", "features.orb_scale_factor"])
@@ -615,6 +623,10 @@ fn corpus() -> Vec<Case> {
         case("synth --frames 1e12", "synth", &["--frames", "1000000000000", "--out", "out"], &["frames must be at most"]),
         case("synth field of the wrong type", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:1"])
             .file("s.toml", "frames = \"many\"\n"),
+        case("synth views above the ceiling", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:4", "motion.view_height", "lowest ceiling"])
+            .file("s.toml", "[room]\nheight = [2.4, 3.0]\n[motion]\nview_height = [0.5, 2.5]\n"),
+        case("synth ceiling range upside down", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml:2", "room.height"])
+            .file("s.toml", "[room]\nheight = [3.5, 2.5]\n"),
         case("synth 100 million views a scene", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "nyu_views_per_scene"])
             .file("s.toml", "[output]\nnyu_views_per_scene = 100000000\n"),
         case("synth 100 scenes of a million frames", "synth", &["--config", "s.toml", "--out", "out"], &["s.toml", "renders"])

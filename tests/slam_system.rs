@@ -447,6 +447,82 @@ fn monocular_multiview_depth_makes_keyframes_agree_despite_a_slanted_prediction(
     );
 }
 
+/// Ground-truth labels and depth, every depth `0.7` times the truth: the network's room-size
+/// prior in a room larger than its training rooms.
+struct ShrunkDepth(GroundTruthSource);
+
+impl SemanticSource for ShrunkDepth {
+    fn name(&self) -> &'static str {
+        "shrunk ground truth"
+    }
+    fn provides_depth(&self) -> bool {
+        true
+    }
+    fn predict(
+        &self,
+        input: &sdf_slam::slam::SemanticInput<'_>,
+    ) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
+        let (labels, depth) = self.0.predict(input)?;
+        let depth = depth.map(|mut d| {
+            d.data.iter_mut().for_each(|v| *v *= 0.7);
+            d
+        });
+        Ok((labels, depth))
+    }
+}
+
+#[test]
+fn the_camera_height_fixes_a_monocular_map_whose_depth_has_the_wrong_scale() {
+    let seq = box_room();
+    // The box room's camera is 1.3 m above its floor.
+    let run = |height: f64| {
+        let mut cfg = config(false);
+        cfg.scale.camera_height = height;
+        let mut system = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
+        system.semantics = Box::new(ShrunkDepth(GroundTruthSource::open(&seq, 5000.0).unwrap()));
+        let out = system.run(quiet()).unwrap();
+        let dir = tmp_dir(&format!("box_height_{height}"));
+        let sequence = TumSequence::open(&seq).unwrap();
+        let report = write_outputs(&out, &sequence, &box_camera(), &cfg, &dir).unwrap();
+        let gt = sequence.groundtruth.clone().unwrap();
+        let sim3 = ape(&gt, &out.trajectory(), Alignment::Sim3, 0.02).unwrap();
+        (out, report, sim3.alignment.scale, dir)
+    };
+    let (plain, plain_report, plain_scale, _) = run(0.0);
+    // Without the height: the floor is measured, 0.7 x 1.3 m below the cameras, the map
+    // keeps the depth's scale, and a metric check of the map fails.
+    let floor = plain
+        .scale
+        .floor
+        .clone()
+        .expect("the box room's floor is seen");
+    assert!((floor.camera_height - 0.91).abs() < 0.03, "{floor:?}");
+    assert_eq!(plain.scale.applied, None);
+    // Measured: the trajectory's Sim(3) scale 1.50 without, 1.04 with the height (the fit to
+    // 24 short steps is loose; the map's metric check below is tight).
+    assert!(plain_scale > 1.35, "{plain_scale}");
+    // The multi-view depth agrees with a prediction wrong by one scale for every view.
+    let m = plain.scale.multiview.clone().expect("multi-view ratios");
+    assert!((m.scale - 1.0).abs() < 0.05, "{m:?}");
+    let before = plain_report.map_accuracy.clone().unwrap().position_accuracy;
+    // With it: scaled by 1.3 / 0.91, the trajectory and the map metric again (measured: 91 %
+    // of the map within 5 cm).
+    let (fixed, report, scale, dir) = run(1.3);
+    let k = fixed.scale.applied.expect("the height was applied");
+    assert!((k - 1.0 / 0.7).abs() < 0.05, "{k}");
+    assert!((scale - 1.0).abs() < 0.08, "Sim(3) scale {scale}");
+    let after = report.map_accuracy.clone().unwrap().position_accuracy;
+    assert!(after > 0.8 && after > before + 0.3, "{before} -> {after}");
+    let ply = read_ply(dir.join("map.ply")).unwrap();
+    assert_eq!(ply.len(), report.map_points);
+    assert!(
+        report.summary().contains("scaled the map by"),
+        "{}",
+        report.summary()
+    );
+    assert!(report.markdown().contains("## Scale"));
+}
+
 #[test]
 fn threads_and_single_thread_give_the_same_trajectory_and_map() {
     let seq = box_room();
@@ -669,6 +745,16 @@ fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
     );
     // Still accurate where it tracked.
     assert!(ate(&out, &dir, Alignment::Se3) < 0.05);
+    // Strict: the unreadable frame ends the run with an error naming it (both loops).
+    for threads in [false, true] {
+        let mut cfg = config(threads);
+        cfg.system.strict_frames = true;
+        let Err(e) = slam(&dir, box_camera(), cfg, DepthMode::Sensor, false).run(quiet()) else {
+            panic!("a strict run with an unreadable frame succeeded");
+        };
+        let e = e.to_string();
+        assert!(e.contains("frame 16") && e.contains("strict_frames"), "{e}");
+    }
 }
 
 #[test]

@@ -112,7 +112,7 @@ pub fn with_fixture_paths(
 /// Whether `dir` holds a run that `train` with no config made: its saved config trains SDFCNN
 /// into [`OUT`].
 pub fn is_default_run(dir: &Path) -> bool {
-    let Ok(text) = std::fs::read_to_string(dir.join("config.toml")) else {
+    let Ok(text) = sdf_slam::io::read_text(dir.join("config.toml")) else {
         return false;
     };
     let Ok(table) = toml::from_str::<toml::Table>(&text) else {

@@ -98,7 +98,7 @@ fn weights_in(dir: &Path) -> Result<Option<Weights>> {
     if !floats.is_empty() && floats.iter().all(|d| matches!(d, DType::F16 | DType::BF16)) {
         return Ok(Some(Weights::Half));
     }
-    let averaged = std::fs::read_to_string(dir.join("config.toml"))
+    let averaged = sdf_slam::io::read_text(dir.join("config.toml"))
         .is_ok_and(|t| t.starts_with(AVERAGED_HEADER));
     Ok(Some(if averaged {
         Weights::Averaged

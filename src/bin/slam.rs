@@ -9,7 +9,7 @@
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
 //!      [--features fpfdcnn|orb] [--fpfdcnn CKPT] [--labels gt|sdfcnn|none] [--sdfcnn CKPT]
 //!      [--config configs/slam/default.toml] [--out DIR] [--backend ndarray|flex|wgpu|cuda]
-//!      [--single-thread] [--max-frames N]
+//!      [--single-thread] [--max-frames N] [--first N] [--camera-height METRES]
 //! ```
 
 use anyhow::{Context, Result, bail};
@@ -26,6 +26,7 @@ use sdf_slam::nn::BackendKind;
 use sdf_slam::output_lock::{OutputLock, command_line};
 use sdf_slam::signals::StopSignals;
 use sdf_slam::slam::frontend::tracking::FrameRecord;
+use sdf_slam::slam::mapping::scale_anchor::check_camera_height;
 use sdf_slam::slam::output::{write_outputs, write_trajectory};
 use sdf_slam::slam::system::{Log, Progress};
 use sdf_slam::slam::{
@@ -122,6 +123,10 @@ struct Cli {
     /// --max-frames, e.g. frames held back from training.
     #[arg(long, default_value_t = 0)]
     first: usize,
+    /// Height of the camera above the floor, metres (scale.camera_height). Monocular mode: the
+    /// map's floor fixes its scale; every run reports the height its map implies.
+    #[arg(long, value_name = "METRES", allow_negative_numbers = true)]
+    camera_height: Option<f64>,
 }
 
 /// A checkpoint given on the command line, else the bundled one (if present).
@@ -329,6 +334,10 @@ fn main() -> Result<()> {
     };
     if cli.single_thread {
         config.system.threads = false;
+    }
+    if let Some(h) = cli.camera_height {
+        check_camera_height(h).map_err(|e| anyhow::anyhow!("--camera-height: {e}"))?;
+        config.scale.camera_height = h;
     }
     // The backend first, even when no network runs (never another backend than asked);
     // then the networks: weights that do not fit fail before anything else happens.

@@ -156,19 +156,6 @@ fn upgrade_legacy(table: &mut toml::Table) -> std::result::Result<Vec<String>, S
     Ok(moved)
 }
 
-/// `optimizer.lr_steps` in strictly increasing epoch order: a schedule written out of order
-/// (or with one epoch twice) is a typo whose intent cannot be read back.
-pub(crate) fn check_lr_steps(steps: &[(usize, f64)]) -> std::result::Result<(), String> {
-    match steps.windows(2).find(|w| w[1].0 <= w[0].0) {
-        Some(w) => Err(format!(
-            "optimizer.lr_steps must list epochs in increasing order: [{}, {}] comes after \
-             [{}, {}]",
-            w[1].0, w[1].1, w[0].0, w[0].1
-        )),
-        None => Ok(()),
-    }
-}
-
 impl FpfdcnnTrainConfig {
     /// Parses and checks a config; errors name the file and line.
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
@@ -233,7 +220,6 @@ impl FpfdcnnTrainConfig {
         cfg.optimizer
             .validate()
             .map_err(|m| Error::invalid(path, m))?;
-        check_lr_steps(&cfg.optimizer.lr_steps).map_err(|m| Error::invalid(path, m))?;
         if !legacy && cfg.data.sequences.is_empty() {
             // Checked here, not only when the data are read, so that `--dry-run` says it.
             return bad(

@@ -278,19 +278,6 @@ impl SdfcnnTrainConfig {
             ));
         }
         self.optimizer.validate()?;
-        // A schedule out of epoch order is a typo (FPFDCNN's config checks the same).
-        if let Some(w) = self
-            .optimizer
-            .lr_steps
-            .windows(2)
-            .find(|w| w[1].0 <= w[0].0)
-        {
-            return Err(format!(
-                "optimizer.lr_steps must list epochs in increasing order: [{}, {}] comes after \
-                 [{}, {}]",
-                w[1].0, w[1].1, w[0].0, w[0].1
-            ));
-        }
         if self.data.train.len() + self.data.val.len() > MAX_SOURCES {
             return Err(format!(
                 "[data] lists {} train and val sources, more than {MAX_SOURCES}",

@@ -86,29 +86,30 @@ impl Default for RoomConfig {
 
 impl RoomConfig {
     pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(Error::msg(format!("room: {m}")));
+        let bad = |m: String| Err(Error::msg(m));
         for k in 0..2 {
             let (lo, hi) = (self.min_size[k], self.max_size[k]);
             if !(lo.is_finite() && hi.is_finite()) || lo < 3.0 || hi < lo || hi > 20.0 {
                 return bad(format!(
-                    "sizes must satisfy 3 <= min_size <= max_size <= 20 m, got {lo} and {hi}"
+                    "room.min_size and room.max_size must satisfy 3 <= min_size <= max_size <= \
+                     20 m, got {lo} and {hi}"
                 ));
             }
         }
         let [h0, h1] = self.height;
-        if !(h0.is_finite() && h1.is_finite()) || h0 < 2.3 || h1 < h0 || h1 > 6.0 {
+        if !(h0.is_finite() && h1.is_finite()) || h0 < 2.2 || h1 < h0 || h1 > 6.0 {
             return bad(format!(
-                "height must satisfy 2.3 <= min <= max <= 6 m, got [{h0}, {h1}]"
+                "room.height must satisfy 2.2 <= min <= max <= 6 m, got [{h0}, {h1}]"
             ));
         }
         if !(0.0..=1.0).contains(&self.l_shape_probability) {
-            return bad("l_shape_probability must be in [0, 1]".into());
+            return bad("room.l_shape_probability must be in [0, 1]".into());
         }
         if !(0.0..=1.0).contains(&self.clutter) {
-            return bad("clutter must be in [0, 1]".into());
+            return bad("room.clutter must be in [0, 1]".into());
         }
         if self.kinds.is_empty() {
-            return bad("kinds must list at least one room kind".into());
+            return bad("room.kinds must list at least one room kind".into());
         }
         Ok(())
     }
@@ -214,6 +215,8 @@ pub struct MotionConfig {
     pub speed: f64,
     /// Minimum distance from the camera to any surface, metres.
     pub clearance: f64,
+    /// Camera height range `[min, max]` of the NYU-layout still views, metres above the floor.
+    pub view_height: [f64; 2],
 }
 
 impl Default for MotionConfig {
@@ -221,6 +224,7 @@ impl Default for MotionConfig {
         MotionConfig {
             speed: 1.0,
             clearance: 0.3,
+            view_height: [0.8, 1.8],
         }
     }
 }
@@ -327,7 +331,7 @@ impl SynthConfig {
         let text = crate::io::read_text(path)?;
         let cfg: SynthConfig = toml::from_str(&text).map_err(|e| toml_error(path, &text, e))?;
         cfg.validate()
-            .map_err(|e| Error::invalid(path, e.to_string()))?;
+            .map_err(|e| crate::io::config_error(path, &text, e.to_string()))?;
         Ok(cfg)
     }
 
@@ -389,6 +393,16 @@ impl SynthConfig {
         }
         if !(m.clearance.is_finite() && (0.05..=1.0).contains(&m.clearance)) {
             return bad("motion.clearance must be in [0.05, 1] m");
+        }
+        let [v0, v1] = m.view_height;
+        // The camera keeps its clearance from the floor and from the lowest ceiling.
+        let top = self.room.height[0] - m.clearance;
+        if !(v0.is_finite() && v1.is_finite() && v0 >= m.clearance && v1 >= v0 && v1 <= top) {
+            return Err(Error::msg(format!(
+                "motion.view_height = [{v0}, {v1}] must satisfy motion.clearance ({}) <= min <= \
+                 max <= the lowest ceiling (room.height min {}) less the clearance ({top:.2} m)",
+                m.clearance, self.room.height[0]
+            )));
         }
         let r = &self.render;
         if !(r.exposure.is_finite() && r.exposure > 0.0 && r.exposure <= 100.0) {
@@ -483,7 +497,18 @@ mod tests {
         assert!(e.contains("c.toml:1") && e.contains("zigzag"), "{e}");
         std::fs::write(&p, "frames = 10\n[room]\nheight = [2.0, 1.0]\n").unwrap();
         let e = SynthConfig::from_file(&p).unwrap_err().to_string();
-        assert!(e.contains("height"), "{e}");
+        assert!(e.contains("c.toml:3") && e.contains("room.height"), "{e}");
+        // Still views that cannot fit under the lowest ceiling.
+        std::fs::write(
+            &p,
+            "[room]\nheight = [2.4, 3]\n[motion]\nview_height = [0.5, 2.5]\n",
+        )
+        .unwrap();
+        let e = SynthConfig::from_file(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("c.toml:4") && e.contains("lowest ceiling"),
+            "{e}"
+        );
         std::fs::write(&p, "fps = 0.001\n").unwrap();
         let e = SynthConfig::from_file(&p).unwrap_err().to_string();
         assert!(e.contains("fps"), "{e}");

@@ -244,7 +244,7 @@ fn free_point(scene: &Scene, rng: &mut ChaCha8Rng, z: (f64, f64), clear: f64) ->
         let p = [
             rng.random_range(0.0..r.width as f64),
             rng.random_range(0.0..r.depth as f64),
-            rng.random_range(z.0..z.1),
+            rng.random_range(z.0..=z.1),
         ];
         if scene.clearance(&v3(p)) as f64 >= clear {
             return Some(p);
@@ -621,7 +621,7 @@ fn walk(
 }
 
 /// An independent random view (for still-image training sets): a free point
-/// 0.8 to 1.8 m high looking at something in the room.
+/// `cfg.view_height` high (0.8 to 1.8 m by default) looking at something in the room.
 pub fn random_view(
     scene: &Scene,
     camera: &Camera,
@@ -631,7 +631,8 @@ pub fn random_view(
     let probe = ViewProbe::new(camera, 12, 9);
     let mut best: Option<(usize, Pose)> = None;
     for _ in 0..300 {
-        let Some(p) = free_point(scene, rng, (0.8, 1.8), cfg.clearance + 0.1) else {
+        let [lo, hi] = cfg.view_height;
+        let Some(p) = free_point(scene, rng, (lo, hi), cfg.clearance + 0.1) else {
             break;
         };
         let mut target = interest(scene, rng, 0.0, 2.5);

@@ -127,6 +127,15 @@ impl OptimizerConfig {
         if lrs.clone().any(|lr| !(lr > 0.0 && lr.is_finite())) {
             return Err("optimizer learning rates must be positive".into());
         }
+        // A schedule out of epoch order (or with one epoch twice) is a typo whose intent
+        // cannot be read back.
+        if let Some(w) = self.lr_steps.windows(2).find(|w| w[1].0 <= w[0].0) {
+            return Err(format!(
+                "optimizer.lr_steps must list epochs in increasing order: [{}, {}] comes after \
+                 [{}, {}]",
+                w[1].0, w[1].1, w[0].0, w[0].1
+            ));
+        }
         if !(0.0..1.0).contains(&self.momentum) || !(0.0..=1.0).contains(&self.dampening) {
             return Err("optimizer.momentum must be in [0, 1), dampening in [0, 1]".into());
         }

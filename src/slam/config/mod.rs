@@ -2,7 +2,7 @@
 //! (`configs/slam/default.toml` documents each field). Unknown keys are errors, missing
 //! keys take the defaults below.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::fpfdcnn::inference::DetectorConfig;
 use crate::pnp::PnpConfig;
 use crate::range_matcher::RangeMatcherConfig;
@@ -31,6 +31,7 @@ pub struct SlamConfig {
     pub labels: LabelVoteConfig,
     pub correction: CorrectionConfig,
     pub bundle_adjustment: BundleAdjustmentConfig,
+    pub scale: ScaleConfig,
     pub system: SystemConfig,
 }
 
@@ -691,6 +692,9 @@ pub struct SystemConfig {
     pub position_tolerance: f64,
     /// At most this many map points are evaluated against ground truth.
     pub max_eval_points: usize,
+    /// A frame that cannot be read (a missing or damaged image, another size than the camera)
+    /// ends the run with an error naming it; off, it is skipped and reported.
+    pub strict_frames: bool,
 }
 
 impl Default for SystemConfig {
@@ -701,7 +705,23 @@ impl Default for SystemConfig {
             feature_workers: 2,
             position_tolerance: 0.05,
             max_eval_points: 200_000,
+            strict_frames: false,
         }
+    }
+}
+
+/// Monocular scale anchors ([`crate::slam::mapping::scale_anchor`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ScaleConfig {
+    /// Height of the camera above the floor, metres (0: not known). Monocular mode: the floor
+    /// plane of the map then fixes its scale; with sensor depth it is only compared.
+    pub camera_height: f64,
+}
+
+impl Default for ScaleConfig {
+    fn default() -> Self {
+        ScaleConfig { camera_height: 0.0 }
     }
 }
 
@@ -710,7 +730,8 @@ impl SlamConfig {
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
         let cfg: SlamConfig =
             toml::from_str(text).map_err(|e| crate::camera::toml_error(path, text, e))?;
-        cfg.validate().map_err(|m| Error::invalid(path, m))?;
+        cfg.validate()
+            .map_err(|m| crate::io::config_error(path, text, m))?;
         Ok(cfg)
     }
 

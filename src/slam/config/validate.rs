@@ -13,6 +13,11 @@ impl SlamConfig {
         self.validate_dense()?;
         self.validate_correction()?;
         self.validate_bundle_adjustment()?;
+        let h = self.scale.camera_height;
+        if h != 0.0 {
+            crate::slam::mapping::scale_anchor::check_camera_height(h)
+                .map_err(|e| format!("scale.camera_height: {e} (0: not known)"))?;
+        }
         Ok(())
     }
 

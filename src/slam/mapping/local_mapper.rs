@@ -5,6 +5,7 @@
 
 use super::depth_edges::drop_depth_edges;
 use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
+use super::scale_anchor::depth_ratio;
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
 use crate::camera::Camera;
@@ -50,11 +51,17 @@ pub struct LocalMapper {
     pub semantics_time: StageTime,
     pub multiview_time: StageTime,
     pub multiview: SweepSummary,
+    /// Each measured keyframe's median multi-view / predicted depth ratio (monocular mode),
+    /// fused over the run by [`super::scale_anchor::fuse_ratios`].
+    pub scale_ratios: Vec<f64>,
     /// Full-resolution grey images of the last `multiview.look_back` keyframes (monocular
     /// mode) with their index in the map: the references of multi-view depth.
     recent: VecDeque<(usize, Arc<GrayView>)>,
     pub fusion_time: StageTime,
 }
+
+/// Measured pixels a keyframe needs for its multi-view / predicted depth ratio.
+const MIN_RATIO_PIXELS: usize = 100;
 
 impl LocalMapper {
     pub fn new(
@@ -80,6 +87,7 @@ impl LocalMapper {
             semantics_time: StageTime::default(),
             multiview_time: StageTime::default(),
             multiview: SweepSummary::default(),
+            scale_ratios: Vec::new(),
             recent: VecDeque::new(),
             fusion_time: StageTime::default(),
         }
@@ -226,6 +234,9 @@ impl LocalMapper {
         );
         self.multiview.candidates += summary.candidates;
         self.multiview.confirmed += summary.confirmed;
+        if let Some(r) = depth_ratio(&view.depth.data, &measured.data, MIN_RATIO_PIXELS) {
+            self.scale_ratios.push(r);
+        }
         merge_measured(
             &mut view.depth,
             &measured,

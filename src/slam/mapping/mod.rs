@@ -7,11 +7,14 @@
 //!   or none;
 //! * [`multiview_depth`] — monocular mode: the predicted depth measured again by a plane
 //!   sweep against earlier keyframes;
+//! * [`scale_anchor`] — monocular mode: the floor and the camera height, and the multi-view
+//!   depth against the predicted, as checks of the map's scale;
 //! * [`depth_edges`] — pixels on depth discontinuities dropped before fusion;
 //! * [`semantic_map`] — the voxel map and its label votes.
 
 pub mod depth_edges;
 pub mod local_mapper;
 pub mod multiview_depth;
+pub mod scale_anchor;
 pub mod semantic_map;
 pub mod semantic_source;

@@ -102,6 +102,16 @@ impl SemanticMap {
         self.voxels.clear();
     }
 
+    /// Scales the map by `s` about the origin: the voxel size with it, so every point keeps
+    /// its voxel and its votes.
+    pub fn rescale(&mut self, s: f64) {
+        self.voxel_size *= s;
+        for v in self.voxels.values_mut() {
+            v.sum = v.sum.map(|c| c * s);
+        }
+        self.rays = None;
+    }
+
     /// Voxel index of a world point.
     pub fn key(&self, p: &Point3<f64>) -> [i32; 3] {
         let f = |v: f64| (v / self.voxel_size).floor() as i32;

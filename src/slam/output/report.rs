@@ -157,6 +157,9 @@ pub struct Report {
     /// The keyframes' ATE live, before and after the final optimisation.
     #[serde(default)]
     pub keyframe_ate: super::evaluation::KeyframeAtes,
+    /// The floor's camera height, the monocular map-level scale and any rescaling.
+    #[serde(default)]
+    pub scale: crate::slam::system::scale::ScaleReport,
     pub outputs: Vec<PathBuf>,
 }
 
@@ -252,8 +255,52 @@ impl Report {
             multiview: out.multiview,
             local_adjustment: out.local_adjustment,
             keyframe_ate: Default::default(),
+            scale: out.scale.clone(),
             outputs: Vec::new(),
         }
+    }
+
+    /// What the scale anchors found ([`crate::slam::mapping::scale_anchor`]), a line each.
+    pub fn scale_lines(&self) -> Vec<String> {
+        let sc = &self.scale;
+        let mut lines = Vec::new();
+        match (&sc.floor, &sc.floor_error) {
+            (Some(f), _) => {
+                let mut l = format!(
+                    "floor: {} of {} floor points on one plane; the cameras are {:.3} (± {:.3}) map units above it",
+                    f.inliers, f.floor_points, f.camera_height, f.height_spread
+                );
+                match (sc.camera_height, sc.applied) {
+                    (Some(h), Some(k)) => {
+                        l += &format!("; the camera height {h:.3} m scaled the map by {k:.3}")
+                    }
+                    (Some(h), None) => {
+                        l += &format!(
+                            "; sensor depth is metric, so the map is not rescaled: the camera height given ({h:.3} m) is {:+.1} % from it",
+                            100.0 * (f.camera_height / h - 1.0)
+                        )
+                    }
+                    (None, _) => {
+                        l += " (give the camera height, `--camera-height`, to check or fix the scale)"
+                    }
+                }
+                lines.push(l);
+            }
+            (None, Some(e)) => lines.push(format!("floor: {e}; the map keeps its scale")),
+            (None, None) => {}
+        }
+        if let Some(m) = &sc.multiview {
+            lines.push(format!(
+                "map-level scale: multi-view / SDFCNN depth over {} keyframes {:.3} ± {:.1} % (10-90 %: {:.3}-{:.3}){}",
+                m.keyframes,
+                m.scale,
+                100.0 * m.relative_error,
+                m.p10,
+                m.p90,
+                if m.poorly_determined { ", poorly determined" } else { "" }
+            ));
+        }
+        lines
     }
 
     /// The report as Markdown.
@@ -527,6 +574,13 @@ impl Report {
                 100.0 * m.confirmed as f64 / m.candidates as f64
             );
         }
+        let scale = self.scale_lines();
+        if !scale.is_empty() {
+            let _ = writeln!(s, "\n## Scale\n");
+            for l in scale {
+                let _ = writeln!(s, "- {l}");
+            }
+        }
         let _ = writeln!(s, "\n## Files\n");
         for p in &self.outputs {
             let _ = writeln!(s, "- `{}`", p.display());
@@ -576,6 +630,9 @@ impl Report {
                 "poses moved from the depth's instant to the colour's on {} frames",
                 self.tracking.colour_instant
             );
+        }
+        for l in self.scale_lines() {
+            let _ = writeln!(s, "{l}");
         }
         let _ = writeln!(s, "speed {:.2} frames/s overall; per stage:", self.fps);
         for t in self.timing.iter().filter(|t| t.calls > 0) {

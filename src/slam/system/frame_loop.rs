@@ -23,6 +23,8 @@ pub(super) struct Frames<'a> {
     pub(super) sequence: &'a TumSequence,
     pub(super) n: usize,
     pub(super) monocular: bool,
+    /// `system.strict_frames`: a frame that cannot be read ends the run with an error.
+    pub(super) strict: bool,
     pub(super) stop: Arc<AtomicBool>,
     pub(super) log: Log,
 }
@@ -64,6 +66,8 @@ pub(super) struct TrackingRun {
     pub(super) tracker: Tracker,
     pub(super) frames: Vec<FrameRecord>,
     pub(super) skipped: Vec<(usize, String)>,
+    /// `system.strict_frames`: the frame that could not be read, and why; the run stopped.
+    pub(super) refused: Option<(usize, String)>,
     pub(super) load: StageTime,
     pub(super) features: StageTime,
     pub(super) tracking: StageTime,
@@ -119,6 +123,7 @@ pub(super) fn tracking_loop(
         sequence: seq,
         n,
         monocular,
+        strict,
         ref stop,
         ref log,
     } = *frames;
@@ -126,6 +131,7 @@ pub(super) fn tracking_loop(
         tracker,
         frames: Vec::new(),
         skipped: Vec::new(),
+        refused: None,
         load: StageTime::default(),
         features: StageTime::default(),
         tracking: StageTime::default(),
@@ -141,6 +147,10 @@ pub(super) fn tracking_loop(
         }
         let (frame, features) = match p.frame {
             Ok(f) => f,
+            Err(e) if strict => {
+                run.refused = Some((i, e.to_string()));
+                return false;
+            }
             Err(e) => {
                 log(&format!("warning: frame {i} skipped: {e}"));
                 run.skipped.push((i, e.to_string()));

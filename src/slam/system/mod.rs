@@ -7,6 +7,7 @@
 //! the final pose graph is solved from the tracked poses with all constraints.
 
 mod frame_loop;
+pub mod scale;
 mod stages;
 mod timing;
 
@@ -144,6 +145,8 @@ pub struct SlamOutput {
     pub depth: DepthMode,
     pub keypoint_source: &'static str,
     pub semantic_source: &'static str,
+    /// The floor's camera height and the monocular map-level scale, and any rescaling.
+    pub scale: scale::ScaleReport,
 }
 
 impl SlamOutput {
@@ -278,6 +281,7 @@ impl Slam {
             sequence: &sequence,
             n,
             monocular,
+            strict: config.system.strict_frames,
             stop: control.stop.clone(),
             log: control.log.clone(),
         };
@@ -293,6 +297,13 @@ impl Slam {
         } else {
             run_in_order(&frames, stages, &map, &mut notify)
         };
+        if let Some((i, why)) = run.refused.take() {
+            return Err(Error::msg(format!(
+                "frame {i} of {} could not be read (system.strict_frames is on; off, the frame \
+                 is skipped and reported): {why}",
+                crate::io::short_path(&sequence.root)
+            )));
+        }
         let mut timings = Timings {
             load: run.load,
             features: run.features,
@@ -321,6 +332,7 @@ impl Slam {
             semantic_map,
             failures,
             multiview,
+            scale_ratios,
             ..
         } = mapper;
         let map = std::mem::take(&mut *write(&map));
@@ -330,7 +342,7 @@ impl Slam {
                 run.frames.len()
             ));
         }
-        Ok(SlamOutput {
+        let mut out = SlamOutput {
             frames: run.frames,
             map,
             semantic_map,
@@ -361,7 +373,24 @@ impl Slam {
             depth,
             keypoint_source,
             semantic_source,
-        })
+            scale: scale::ScaleReport::default(),
+        };
+        out.scale = scale::anchor_scale(&mut out, &config, &scale_ratios);
+        for w in &out.scale.warnings {
+            (control.log)(&format!("warning: {w}"));
+        }
+        if let Some(s) = out.scale.applied {
+            (control.log)(&format!(
+                "scale: the floor is {:.3} map units below the cameras; the camera height \
+                 {:.3} m scales the map by {s:.3}",
+                out.scale
+                    .floor
+                    .as_ref()
+                    .map_or(f64::NAN, |f| f.camera_height),
+                config.scale.camera_height
+            ));
+        }
+        Ok(out)
     }
 }
 

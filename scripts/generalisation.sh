@@ -89,7 +89,7 @@ for scene in "${scenes[@]}"; do
         mono=$OUT/${name}_${scene}_mono_${first}
         run_slam() {
             "$bin/slam" --sequence "$SEQ" --camera "$CAM" --first "$first" --max-frames "$count" \
-                --labels sdfcnn --sdfcnn "$ckpt" --backend "$BACKEND" "$@"
+                --labels sdfcnn --sdfcnn "$ckpt" --backend "$BACKEND" --overwrite "$@"
         }
         run_slam --depth predicted --out "$mono"
         slam_cells=$(py_field "$mono/report.json" "'%.4f m | %.3f | %.1f %%' % (d['ate']['stats']['rmse'], d['ate']['scale'], 100 * d['map_accuracy']['position_accuracy'])")

@@ -20,19 +20,25 @@ pub const FOCAL_RANGE: (f64, f64) = (0.1, 100.0);
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Distortion {
+    /// First radial distortion coefficient (r² term).
     #[serde(default)]
     pub k1: f64,
+    /// Second radial distortion coefficient (r⁴ term).
     #[serde(default)]
     pub k2: f64,
+    /// First tangential distortion coefficient.
     #[serde(default)]
     pub p1: f64,
+    /// Second tangential distortion coefficient.
     #[serde(default)]
     pub p2: f64,
+    /// Third radial distortion coefficient (r⁶ term).
     #[serde(default)]
     pub k3: f64,
 }
 
 impl Distortion {
+    /// Whether every coefficient is zero (no distortion: an ideal pinhole).
     pub fn is_zero(&self) -> bool {
         *self == Distortion::default()
     }
@@ -90,12 +96,19 @@ pub struct Camera {
     /// Optional human-readable name (e.g. "freiburg1").
     #[serde(default)]
     pub name: String,
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Horizontal focal length, pixels.
     pub fx: f64,
+    /// Vertical focal length, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels.
     pub cy: f64,
+    /// Lens distortion (zero for an ideal pinhole).
     #[serde(default)]
     pub distortion: Distortion,
 }
@@ -448,14 +461,18 @@ impl Camera {
 /// images, row by row (undistortion iterates: done once, looked up per frame).
 #[derive(Debug, Clone)]
 pub struct RayTable {
+    /// Pixel step between samples, in both directions (at least 1).
     pub stride: u32,
     /// Samples per row and per column: the image size divided by `stride`, rounded up.
     pub width: u32,
+    /// Samples per column: the image height divided by `stride`, rounded up.
     pub height: u32,
+    /// Normalised coordinates `[X/Z, Y/Z]` of each sample, row by row (`width * height` of them).
     pub rays: Vec<[f64; 2]>,
 }
 
 impl RayTable {
+    /// Tabulates the rays of `camera` every `stride` pixels (a `stride` of 0 is taken as 1).
     pub fn new(camera: &Camera, stride: u32) -> Self {
         let stride = stride.max(1);
         let (w, h) = (

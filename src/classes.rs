@@ -98,45 +98,85 @@ pub const PALETTE: [[u8; 3]; NUM_CLASSES] = [
 ];
 /// Named constants for the labels the code refers to.
 pub mod label {
+    /// Label 0: "wall".
     pub const WALL: u8 = 0;
+    /// Label 1: "floor".
     pub const FLOOR: u8 = 1;
+    /// Label 2: "cabinet".
     pub const CABINET: u8 = 2;
+    /// Label 3: "bed".
     pub const BED: u8 = 3;
+    /// Label 4: "chair".
     pub const CHAIR: u8 = 4;
+    /// Label 5: "sofa".
     pub const SOFA: u8 = 5;
+    /// Label 6: "table".
     pub const TABLE: u8 = 6;
+    /// Label 7: "door".
     pub const DOOR: u8 = 7;
+    /// Label 8: "window".
     pub const WINDOW: u8 = 8;
+    /// Label 9: "bookshelf".
     pub const BOOKSHELF: u8 = 9;
+    /// Label 10: "picture".
     pub const PICTURE: u8 = 10;
+    /// Label 11: "counter".
     pub const COUNTER: u8 = 11;
+    /// Label 12: "blinds".
     pub const BLINDS: u8 = 12;
+    /// Label 13: "desk".
     pub const DESK: u8 = 13;
+    /// Label 14: "shelves".
     pub const SHELVES: u8 = 14;
+    /// Label 15: "curtain".
     pub const CURTAIN: u8 = 15;
+    /// Label 16: "dresser".
     pub const DRESSER: u8 = 16;
+    /// Label 17: "pillow".
     pub const PILLOW: u8 = 17;
+    /// Label 18: "mirror".
     pub const MIRROR: u8 = 18;
+    /// Label 19: "floor mat".
     pub const FLOOR_MAT: u8 = 19;
+    /// Label 20: "clothes".
     pub const CLOTHES: u8 = 20;
+    /// Label 21: "ceiling".
     pub const CEILING: u8 = 21;
+    /// Label 22: "books".
     pub const BOOKS: u8 = 22;
+    /// Label 23: "refridgerator".
     pub const REFRIGERATOR: u8 = 23;
+    /// Label 24: "television".
     pub const TELEVISION: u8 = 24;
+    /// Label 25: "paper".
     pub const PAPER: u8 = 25;
+    /// Label 26: "towel".
     pub const TOWEL: u8 = 26;
+    /// Label 27: "shower curtain".
     pub const SHOWER_CURTAIN: u8 = 27;
+    /// Label 28: "box".
     pub const BOX: u8 = 28;
+    /// Label 29: "whiteboard".
     pub const WHITEBOARD: u8 = 29;
+    /// Label 30: "person".
     pub const PERSON: u8 = 30;
+    /// Label 31: "night stand".
     pub const NIGHT_STAND: u8 = 31;
+    /// Label 32: "toilet".
     pub const TOILET: u8 = 32;
+    /// Label 33: "sink".
     pub const SINK: u8 = 33;
+    /// Label 34: "lamp".
     pub const LAMP: u8 = 34;
+    /// Label 35: "bathtub".
     pub const BATHTUB: u8 = 35;
+    /// Label 36: "bag".
     pub const BAG: u8 = 36;
+    /// Label 37: "otherstructure".
     pub const OTHER_STRUCTURE: u8 = 37;
+    /// Label 38: "otherfurniture".
     pub const OTHER_FURNITURE: u8 = 38;
+    /// Label 39: "otherprop".
     pub const OTHER_PROP: u8 = 39;
 }
 

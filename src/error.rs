@@ -10,20 +10,30 @@ pub enum Error {
     /// A file could not be opened, read or written.
     #[error("{}: {source}", crate::io::short_path(path))]
     Io {
+        /// The file concerned.
         path: PathBuf,
+        /// The underlying I/O error.
         #[source]
         source: std::io::Error,
     },
     /// A text file has a malformed line (1-based line number).
     #[error("{}:{line}: {msg}", crate::io::short_path(path))]
     Parse {
+        /// The file concerned.
         path: PathBuf,
+        /// 1-based line number of the malformed line.
         line: usize,
+        /// What is wrong with the line.
         msg: String,
     },
     /// A file is readable but its content is unusable (wrong image format, size...).
     #[error("{}: {msg}", crate::io::short_path(path))]
-    Invalid { path: PathBuf, msg: String },
+    Invalid {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is wrong with its content.
+        msg: String,
+    },
     /// A value could not be written as JSON (its message is serde_json's).
     #[error(transparent)]
     Json(#[from] serde_json::Error),
@@ -43,6 +53,7 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
+    /// An [`Error::Io`] about `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.as_ref().to_path_buf(),
@@ -50,6 +61,7 @@ impl Error {
         }
     }
 
+    /// An [`Error::Parse`] at 1-based `line` of `path`.
     pub fn parse(path: impl AsRef<Path>, line: usize, msg: impl Into<String>) -> Self {
         Error::Parse {
             path: path.as_ref().to_path_buf(),
@@ -58,6 +70,7 @@ impl Error {
         }
     }
 
+    /// An [`Error::Invalid`] about `path`.
     pub fn invalid(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
         Error::Invalid {
             path: path.as_ref().to_path_buf(),
@@ -70,6 +83,7 @@ impl Error {
         Error::Wrapped(Box::new(e))
     }
 
+    /// An [`Error::Msg`] with the given message.
     pub fn msg(msg: impl Into<String>) -> Self {
         Error::Msg(msg.into())
     }

@@ -109,12 +109,16 @@ pub fn orthonormal_basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
 /// A similarity transform `x -> s R x + t` (Umeyama alignment result).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sim3 {
+    /// Rotation `R` (orthonormal, determinant +1).
     pub rotation: Matrix3<f64>,
+    /// Translation `t`, in the target frame's units.
     pub translation: Vector3<f64>,
+    /// Scale factor `s`.
     pub scale: f64,
 }
 
 impl Sim3 {
+    /// The identity transform (`s = 1`, `R = I`, `t = 0`).
     pub fn identity() -> Self {
         Sim3 {
             rotation: Matrix3::identity(),

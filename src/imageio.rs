@@ -13,7 +13,9 @@ use std::path::Path;
 /// What an image file holds, from its header alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ImageHeader {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
     /// Channels per pixel (1 grey or palette, 2 grey + alpha, 3 RGB, 4 RGBA).
     pub channels: u8,

@@ -347,6 +347,7 @@ impl ScratchDir {
         ScratchDir(path)
     }
 
+    /// The folder's path.
     pub fn path(&self) -> &Path {
         &self.0
     }
@@ -384,7 +385,9 @@ impl Drop for ScratchDir {
 /// A data line of a TUM-style text file: its 1-based line number and fields.
 #[derive(Debug, Clone)]
 pub struct Record<'a> {
+    /// 1-based line number in the file.
     pub line: usize,
+    /// The line's fields, in order.
     pub fields: Vec<&'a str>,
 }
 

@@ -13,6 +13,8 @@
 //! [`malloc`] (allocator tuning for tensor workloads).
 //! The SLAM system itself is [`slam`] (`cargo run --release --bin slam`).
 
+#![warn(missing_docs)]
+
 pub mod bundled;
 pub mod camera;
 pub mod classes;

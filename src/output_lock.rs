@@ -67,7 +67,9 @@ fn held() -> std::sync::MutexGuard<'static, Vec<Held>> {
 /// Who holds a folder's lock, as its lock file says.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Holder {
+    /// Process id of the holder (`None` when the file does not give one).
     pub pid: Option<u32>,
+    /// The holder's command line.
     pub command: Option<String>,
     /// `YYYY-MM-DD HH:MM:SS UTC`.
     pub started: Option<String>,

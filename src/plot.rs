@@ -34,7 +34,9 @@ pub const PALETTE: [RGBColor; 6] = [
 
 /// A named polyline.
 pub struct Series<'a> {
+    /// Legend entry.
     pub name: &'a str,
+    /// `(x, y)` vertices in drawing order.
     pub points: Vec<(f64, f64)>,
 }
 
@@ -51,10 +53,15 @@ fn series_color(k: usize) -> RGBColor {
 
 /// One chart of a [`line_charts`] figure.
 pub struct Chart<'a> {
+    /// Title above the chart.
     pub title: &'a str,
+    /// Label of the x axis.
     pub x_label: &'a str,
+    /// Label of the y axis.
     pub y_label: &'a str,
+    /// The lines drawn, in legend order.
     pub series: Vec<Series<'a>>,
+    /// Logarithmic y axis.
     pub log_y: bool,
     /// Draw a dot at every point (for curves with few points).
     pub markers: bool,
@@ -316,7 +323,9 @@ pub fn trajectory_figure(
 
 /// One image of a [`panels_figure`] with its title.
 pub struct Panel<'a> {
+    /// Caption drawn above the image.
     pub title: &'a str,
+    /// The image shown.
     pub image: &'a image::RgbImage,
 }
 

@@ -56,8 +56,11 @@ impl Default for RangeMatcherConfig {
 /// distance (eq 8).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RangeMatch {
+    /// Index of the keypoint in image 1.
     pub i: usize,
+    /// Index of the keypoint in image 2.
     pub j: usize,
+    /// Euclidean distance between their descriptors (eq 8).
     pub distance: f32,
 }
 

@@ -8,12 +8,16 @@ use rayon::prelude::*;
 /// A row-major `f32` image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GrayF32 {
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
+    /// Row-major values, `width * height` of them.
     pub data: Vec<f32>,
 }
 
 impl GrayF32 {
+    /// A `width x height` image, all zero.
     pub fn new(width: usize, height: usize) -> Self {
         GrayF32 {
             width,
@@ -43,6 +47,7 @@ impl GrayF32 {
         }
     }
 
+    /// Value at pixel `(x, y)`, which must lie inside the image.
     #[inline]
     pub fn get(&self, x: usize, y: usize) -> f32 {
         self.data[y * self.width + x]

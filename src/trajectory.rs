@@ -14,11 +14,14 @@ pub const MAX_POSITION: f64 = 1e7;
 /// A trajectory: strictly increasing timestamps (seconds) and poses.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
+    /// Timestamp of each pose, seconds.
     pub stamps: Vec<f64>,
+    /// Camera-to-world poses, one per stamp.
     pub poses: Vec<Pose>,
 }
 
 impl Trajectory {
+    /// An empty trajectory.
     pub fn new() -> Self {
         Self::default()
     }
@@ -42,10 +45,12 @@ impl Trajectory {
         Ok(Trajectory { stamps, poses })
     }
 
+    /// Number of poses.
     pub fn len(&self) -> usize {
         self.stamps.len()
     }
 
+    /// Whether it has no poses.
     pub fn is_empty(&self) -> bool {
         self.stamps.is_empty()
     }

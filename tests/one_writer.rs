@@ -163,6 +163,33 @@ fn a_lock_left_by_a_killed_process_is_taken_over() {
     assert!(!out.join(LOCK).exists());
 }
 
+#[test]
+fn a_finished_run_is_replaced_only_with_overwrite() {
+    let dir = tmp("slam_finished");
+    let out = dir.join("out");
+    let slam = env!("CARGO_BIN_EXE_slam");
+    let first = run(slam, &slam_args(&out, 0));
+    assert!(first.status.success(), "{}", text(&first));
+    let before = first_pose_time(&out);
+    // Sequentially, not at once: still refused, the earlier run kept whole.
+    let second = run(slam, &slam_args(&out, 3));
+    let t = text(&second);
+    assert!(
+        !second.status.success()
+            && t.contains("holds an earlier run's outputs")
+            && t.contains("--overwrite"),
+        "{t}"
+    );
+    assert_eq!(first_pose_time(&out), before, "the earlier run is kept");
+    assert!(out.join("report.json").is_file());
+    let mut args = slam_args(&out, 3);
+    args.push("--overwrite".into());
+    let third = run(slam, &args);
+    assert!(third.status.success(), "{}", text(&third));
+    assert!(text(&third).contains("replacing an earlier run's outputs"));
+    assert!(first_pose_time(&out).starts_with("1305031229.6287"));
+}
+
 /// A tiny SDFCNN training config (three fixture images at 32x48) into `out`.
 fn sdfcnn_config(dir: &Path, name: &str, out: &Path, lr: f64) -> PathBuf {
     let nyu = root().join("datasets/fixtures/nyuv2").display().to_string();

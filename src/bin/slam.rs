@@ -9,7 +9,7 @@
 //! slam [--sequence DIR] [--camera fr1|fr2|fr3|FILE] [--depth sensor|predicted]
 //!      [--features fpfdcnn|orb] [--fpfdcnn CKPT] [--labels gt|sdfcnn|none] [--sdfcnn CKPT]
 //!      [--config configs/slam/default.toml] [--out DIR] [--backend ndarray|flex|wgpu|cuda]
-//!      [--single-thread] [--max-frames N] [--first N] [--camera-height METRES]
+//!      [--single-thread] [--max-frames N] [--first N] [--camera-height METRES] [--overwrite]
 //! ```
 
 use anyhow::{Context, Result, bail};
@@ -119,6 +119,10 @@ struct Cli {
     /// Process at most this many frames.
     #[arg(long)]
     max_frames: Option<usize>,
+    /// Replace the earlier run an explicit --out holds (without it, such a folder is an error;
+    /// the default folder is replaced with a note).
+    #[arg(long)]
+    overwrite: bool,
     /// Start at this frame (0-based, in association order): a segment of a sequence with
     /// --max-frames, e.g. frames held back from training.
     #[arg(long, default_value_t = 0)]
@@ -127,6 +131,25 @@ struct Cli {
     /// map's floor fixes its scale; every run reports the height its map implies.
     #[arg(long, value_name = "METRES", allow_negative_numbers = true)]
     camera_height: Option<f64>,
+}
+
+/// What an output folder holds of an earlier run, in words (`None`: nothing `slam` writes).
+fn earlier_run(dir: &Path) -> Option<String> {
+    let report = dir.join("report.json");
+    if report.is_file() {
+        let frames = sdf_slam::io::read_text(&report)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .and_then(|v| v["frames_processed"].as_u64());
+        return Some(match frames {
+            Some(n) => format!("an earlier run's outputs ({n} frames, report.json)"),
+            None => "an earlier run's outputs (report.json)".to_string(),
+        });
+    }
+    ["trajectory.txt", "keyframes.txt", "map.ply"]
+        .iter()
+        .find(|f| dir.join(f).is_file())
+        .map(|f| format!("an unfinished earlier run ({f} without report.json)"))
 }
 
 /// A checkpoint given on the command line, else the bundled one (if present).
@@ -384,8 +407,26 @@ fn main() -> Result<()> {
         max_frames: cli.max_frames,
     };
     slam.validate()?;
-    // One writer per output folder, locked before any frame is read.
+    // One writer per output folder, locked before any frame is read; an earlier run there is
+    // replaced only when asked (or in the default folder, with a note).
     let lock = OutputLock::acquire(&out_dir, &command_line())?;
+    if let Some(earlier) = earlier_run(&out_dir) {
+        if cli.out.is_some() && !cli.overwrite {
+            bail!(
+                "--out {} holds {earlier}: give another --out, or --overwrite to replace it",
+                out_dir.display()
+            );
+        }
+        eprintln!(
+            "replacing {earlier} in {}{}",
+            out_dir.display(),
+            if cli.out.is_none() {
+                " (give --out DIR to keep runs apart)"
+            } else {
+                ""
+            }
+        );
+    }
     // The handler first: the header below tells a caller the run has started.
     let signals = StopSignals::install().context("installing the signal handlers")?;
     let stop = signals.flag();

@@ -16,13 +16,17 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AugmentConfig {
+    /// Mirror the sample horizontally with probability 1/2.
     pub flip: bool,
     /// Random zoom factor range before cropping to the output size.
     pub scale_min: f32,
+    /// Upper end of the random zoom range; equal to `scale_min` gives a fixed zoom.
     pub scale_max: f32,
     /// Brightness and contrast jitter (relative), saturation jitter.
     pub brightness: f32,
+    /// Contrast jitter: contrast scaled about the mean grey by `1 ± contrast`.
     pub contrast: f32,
+    /// Saturation jitter: colour distance from grey scaled by `1 ± saturation`.
     pub saturation: f32,
 }
 
@@ -77,7 +81,9 @@ impl AugmentConfig {
 /// A training sample at the network's input size.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SegDepthSample {
+    /// Output width, pixels.
     pub width: usize,
+    /// Output height, pixels.
     pub height: usize,
     /// `[3, H, W]` RGB in [0, 1].
     pub rgb: Vec<f32>,

@@ -8,13 +8,16 @@ use std::path::Path;
 /// A depth image: z-depth in metres, `0.0` where the sensor gave no reading.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthImage {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
     /// Row-major, `width * height` values.
     pub data: Vec<f32>,
 }
 
 impl DepthImage {
+    /// An all-missing (zero) depth image of the given size.
     pub fn new(width: u32, height: u32) -> Self {
         DepthImage {
             width,

@@ -31,6 +31,7 @@ pub struct FpConfig {
     pub harris: HarrisConfig,
     /// Depth agreement in B: `|z_B(pixel) − z_projected| ≤ max(abs, rel · z_projected)`.
     pub depth_tolerance_abs: f64,
+    /// Relative part `rel` of the depth agreement above, as a fraction of the projected depth.
     pub depth_tolerance_rel: f64,
     /// Keep projections that land where B has no depth reading (visibility unknown).
     pub keep_unverified: bool,
@@ -79,17 +80,22 @@ impl Default for FpConfig {
 /// A ground-truth correspondence: a corner of A and where it is seen in B (sub-pixel).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FpMatch {
+    /// Corner pixel in frame A.
     pub a: [f32; 2],
+    /// Where it projects in frame B, pixels (sub-pixel).
     pub b: [f32; 2],
 }
 
 /// The pairs of one frame pair, with why the other corners were rejected.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FpPair {
+    /// Index of frame A in its sequence.
     pub frame_a: usize,
+    /// Index of frame B in its sequence.
     pub frame_b: usize,
     /// Harris corners of A, strongest first.
     pub corners_a: Vec<Keypoint>,
+    /// Corners of A seen in B, with their positions there.
     pub matches: Vec<FpMatch>,
     /// Corners without a depth reading in A.
     pub no_depth: usize,
@@ -120,7 +126,9 @@ pub fn transfer(
 /// A full-resolution binary map of detector targets: 1 at corner pixels.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TargetMap {
+    /// Map width, pixels.
     pub width: usize,
+    /// Map height, pixels.
     pub height: usize,
     /// Row-major, `width * height` values in {0, 1}.
     pub data: Vec<u8>,

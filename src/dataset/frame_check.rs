@@ -23,17 +23,22 @@ use std::path::Path;
 pub struct FrameSpec {
     /// The camera's size: the largest an image may be.
     pub width: u32,
+    /// The camera's height, pixels (the largest an image may be).
     pub height: u32,
     /// The smallest crop accepted (the camera's size: no crop).
     pub min_width: u32,
+    /// The smallest crop height accepted, pixels (the camera's height: no crop).
     pub min_height: u32,
 }
 
 /// Which image of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FrameImage {
+    /// The colour image (8-bit RGB or RGBA).
     Colour,
+    /// The depth image (16-bit single-channel).
     Depth,
+    /// The label image of semantic classes (8-bit single-channel or palette).
     Labels,
 }
 

@@ -9,14 +9,18 @@ use std::path::Path;
 /// A row-major label image: NYUv2 40-class indices 0-39, 255 = void.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LabelImage {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Labels row-major, `width * height` values.
     pub data: Vec<u8>,
 }
 
 pub use crate::classes::VOID;
 
 impl LabelImage {
+    /// An image of `width` x `height` pixels all set to `fill`.
     pub fn new(width: u32, height: u32, fill: u8) -> Self {
         LabelImage {
             width,
@@ -25,6 +29,7 @@ impl LabelImage {
         }
     }
 
+    /// The label at pixel column `x`, row `y`.
     #[inline]
     pub fn get(&self, x: u32, y: u32) -> u8 {
         self.data[(y * self.width + x) as usize]

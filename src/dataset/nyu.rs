@@ -30,7 +30,9 @@ pub use crate::classes::NUM_CLASSES;
 /// One sample: its id and where it is.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NyuSample {
+    /// Sample id: the file stem, or for the `.mat` file the 1-based image number (`000433`).
     pub id: String,
+    /// Where the sample's images are stored.
     pub source: SampleSource,
 }
 
@@ -39,9 +41,13 @@ pub struct NyuSample {
 pub enum SampleSource {
     /// PNG files; `labels_894`: the labels are 894-class and need mapping to 40.
     Png {
+        /// Colour image path.
         rgb: PathBuf,
+        /// 16-bit depth image path; `None` when the layout has no depth.
         depth: Option<PathBuf>,
+        /// Label image path.
         labels: PathBuf,
+        /// The labels are 894-class and are mapped to 40 classes on load.
         labels_894: bool,
     },
     /// Image `index` (0-based) of the dataset's `.mat` file.
@@ -51,9 +57,13 @@ pub enum SampleSource {
 /// A loaded sample.
 #[derive(Debug, Clone)]
 pub struct NyuItem {
+    /// The sample's id.
     pub id: String,
+    /// Colour image.
     pub rgb: RgbImage,
+    /// Depth in metres; `None` when the dataset has no depth.
     pub depth: Option<DepthImage>,
+    /// 40-class labels (255 = void).
     pub labels: LabelImage,
 }
 
@@ -64,6 +74,7 @@ pub struct NyuItem {
 pub struct NyuDataset {
     /// The folder or `.mat` file.
     pub root: PathBuf,
+    /// The samples, in split-list order (or all, without a split).
     pub samples: Vec<NyuSample>,
     /// Depth PNG scale, `metres = value / depth_scale` (the `.mat` file stores metres).
     pub depth_scale: f64,
@@ -322,10 +333,12 @@ impl NyuDataset {
         self.frame_spec = Some(spec);
     }
 
+    /// Number of samples.
     pub fn len(&self) -> usize {
         self.samples.len()
     }
 
+    /// Whether there are no samples.
     pub fn is_empty(&self) -> bool {
         self.samples.is_empty()
     }

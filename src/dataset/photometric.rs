@@ -80,10 +80,15 @@ fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f32 {
 /// One degradation with its parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Degradation {
+    /// Add this offset to every intensity ([`brightness`]).
     Brightness(f32),
+    /// Scale intensities about the mean by this factor ([`contrast`]).
     Contrast(f32),
+    /// Add Gaussian noise of this standard deviation ([`gaussian_noise`]).
     Noise(f32),
+    /// Gaussian blur of this sigma, pixels ([`gaussian_blur`]).
     Gaussian(f32),
+    /// Horizontal motion blur with a kernel this many pixels long ([`motion_blur`]).
     Motion(usize),
 }
 
@@ -169,9 +174,11 @@ pub struct PhotometricAugment {
     pub noise_sigma: [f32; 2],
     /// Probability and sigma range of a Gaussian blur.
     pub gaussian_prob: f32,
+    /// Gaussian blur sigma range, pixels.
     pub gaussian_sigma: [f32; 2],
     /// Probability and kernel length range (inclusive) of a horizontal motion blur.
     pub motion_prob: f32,
+    /// Motion blur kernel length range, pixels (inclusive).
     pub motion_kernel: [usize; 2],
 }
 

@@ -187,8 +187,11 @@ pub const MAX_FRAME_NUMBER: usize = 99_999_999;
 pub struct SevenScenesFrame {
     /// The frame number `NNNNNN` of its file names.
     pub number: usize,
+    /// Path of its `frame-NNNNNN.color.png` colour image.
     pub colour: PathBuf,
+    /// Path of its `frame-NNNNNN.depth.png` depth image (millimetres, depth camera).
     pub depth: PathBuf,
+    /// Path of its `frame-NNNNNN.pose.txt` camera-to-world pose (depth camera).
     pub pose: PathBuf,
 }
 
@@ -424,14 +427,18 @@ pub struct ConvertOptions {
     /// This many frames from `first` on (`None`: all); more than the folder has from `first`
     /// on is an error.
     pub count: Option<usize>,
+    /// The depth-to-colour registration used to warp depth and poses.
     pub registration: Registration,
 }
 
 /// What [`convert`] wrote.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConvertSummary {
+    /// Number of frames converted.
     pub frames: usize,
+    /// Frame number of the first converted frame.
     pub first: usize,
+    /// Frame number of the last converted frame.
     pub last: usize,
     /// Mean share of colour pixels with a registered depth reading.
     pub depth_coverage: f64,

@@ -48,9 +48,13 @@ impl Default for TumConfig {
 /// One entry of a sequence: an RGB image and, when associated, a depth image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameInfo {
+    /// Timestamp of the RGB image, seconds.
     pub rgb_stamp: f64,
+    /// Path of the RGB image (under the sequence folder).
     pub rgb_path: PathBuf,
+    /// Timestamp of the associated depth image, seconds (`None` without one).
     pub depth_stamp: Option<f64>,
+    /// Path of the associated depth image (`None` without one).
     pub depth_path: Option<PathBuf>,
 }
 
@@ -64,10 +68,13 @@ impl FrameInfo {
 /// A loaded frame.
 #[derive(Debug, Clone)]
 pub struct Frame {
+    /// Position of the frame in the sequence, from 0.
     pub index: usize,
     /// Timestamp of the RGB image, seconds.
     pub stamp: f64,
+    /// The decoded colour image.
     pub rgb: RgbImage,
+    /// The depth image in metres (`None` when the frame has no depth image).
     pub depth: Option<DepthImage>,
     /// Ground-truth camera-to-world pose interpolated at `stamp`.
     pub gt_pose: Option<Pose>,
@@ -76,9 +83,13 @@ pub struct Frame {
 /// A TUM RGB-D sequence folder.
 #[derive(Debug, Clone)]
 pub struct TumSequence {
+    /// The sequence folder.
     pub root: PathBuf,
+    /// How the sequence was read.
     pub config: TumConfig,
+    /// Every frame, in `rgb.txt` (or `associations.txt`) order.
     pub frames: Vec<FrameInfo>,
+    /// `groundtruth.txt`, with the file's own stamps (`None` without one).
     pub groundtruth: Option<Trajectory>,
     /// What every frame's images must be (the camera's size: [`TumSequence::expect_camera`]);
     /// `None`: images are read as they are, a depth image only checked against its colour
@@ -337,6 +348,7 @@ impl TumSequence {
         self.frames.len()
     }
 
+    /// Whether the sequence has no frames.
     pub fn is_empty(&self) -> bool {
         self.frames.is_empty()
     }

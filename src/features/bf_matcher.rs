@@ -9,7 +9,9 @@ use serde::{Deserialize, Serialize};
 /// A match of query descriptor `query` to train descriptor `train`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct HammingMatch {
+    /// Index of the descriptor in the query set.
     pub query: usize,
+    /// Index of the descriptor in the train set.
     pub train: usize,
     /// Number of differing bits.
     pub distance: u32,

@@ -7,8 +7,11 @@ use serde::{Deserialize, Serialize};
 /// A detected keypoint at pixel `(x, y)` with its response.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Keypoint {
+    /// Column, pixels.
     pub x: f32,
+    /// Row, pixels.
     pub y: f32,
+    /// Corner response (Harris response; higher is stronger).
     pub score: f32,
 }
 

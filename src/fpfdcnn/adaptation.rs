@@ -20,7 +20,9 @@ pub const MAX_WARPS: usize = 256;
 pub struct AdaptationConfig {
     /// Random homographies besides the identity (0: the frame's own response).
     pub warps: usize,
+    /// Range of the random homographies.
     pub homography: HomographyConfig,
+    /// Seed of the random generator drawing the homographies (same seed, same corners).
     pub seed: u64,
 }
 

@@ -28,11 +28,15 @@ pub struct FpfdcnnTrainConfig {
     /// Run folder.
     #[serde(default = "default_out")]
     pub out: PathBuf,
+    /// Backend (`ndarray`, `flex`, `wgpu` or `cuda`); `--backend` overrides it.
     #[serde(default)]
     pub backend: BackendKind,
+    /// Seed of the initial weights, data order and augmentation.
     #[serde(default = "default_seed")]
     pub seed: u64,
+    /// Number of epochs; `--epochs` overrides it.
     pub epochs: usize,
+    /// Frame pairs per step.
     #[serde(default = "default_batch")]
     pub batch_size: usize,
     /// Train each batch in this many parts with their gradients summed (gradient
@@ -50,10 +54,13 @@ pub struct FpfdcnnTrainConfig {
     /// Adam at 1e-3 with the gradient norm clipped at 1 unless the config says otherwise.
     #[serde(default = "default_optimizer", deserialize_with = "optimizer_over")]
     pub optimizer: OptimizerConfig,
+    /// The network ([`FpfdcnnConfig`] fields).
     #[serde(default)]
     pub network: NetworkConfig,
+    /// Training and validation data.
     #[serde(default)]
     pub data: FpDataConfig,
+    /// Loss weights and settings.
     #[serde(default)]
     pub loss: FpfdcnnLossConfig,
 }

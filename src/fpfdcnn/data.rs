@@ -102,6 +102,7 @@ fn default_repeat() -> usize {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FpDataConfig {
+    /// The training sequences.
     pub sequences: Vec<SequenceSource>,
     /// Training image size `[height, width]` (multiples of 16).
     pub size: [usize; 2],
@@ -318,6 +319,7 @@ impl FpDataConfig {
 /// A frame at the training resolution (full resolution when cropping).
 #[derive(Debug, Clone)]
 pub struct FrameEntry {
+    /// The frame in grayscale, values in [0, 1].
     pub gray: GrayF32,
     /// Detector target pixels `(x, y)`.
     pub targets: Vec<(usize, usize)>,
@@ -326,7 +328,9 @@ pub struct FrameEntry {
 /// A frame pair with its matches in its frames' pixels.
 #[derive(Debug, Clone)]
 pub struct PairEntry {
+    /// Index of frame A in [`FpDataset::frames`].
     pub a: usize,
+    /// Index of frame B in [`FpDataset::frames`].
     pub b: usize,
     /// Ground-truth matches (eqs 5-7); empty for a homography pair.
     pub matches: Vec<FpMatch>,
@@ -339,9 +343,13 @@ pub struct PairEntry {
 pub struct FpDataset {
     /// Training image size.
     pub height: usize,
+    /// Training image width, pixels.
     pub width: usize,
+    /// How frames become training images (crop or resize).
     pub sampling: Sampling,
+    /// The split's frames, indexed by [`PairEntry::a`] and [`PairEntry::b`].
     pub frames: Vec<FrameEntry>,
+    /// The split's frame pairs.
     pub pairs: Vec<PairEntry>,
     /// The homographies of homography pairs.
     pub homography: HomographyConfig,
@@ -380,9 +388,13 @@ impl FpHostBatch {
 
 /// A batch ready for the network.
 pub struct FpBatch {
+    /// `[N, 1, H, W]` images A.
     pub image_a: Tensor<4>,
+    /// `[N, 1, H, W]` images B.
     pub image_b: Tensor<4>,
+    /// `[N, 1, H, W]` detector targets of A (1 at a target pixel).
     pub target_a: Tensor<4>,
+    /// `[N, 1, H, W]` detector targets of B (1 at a target pixel).
     pub target_b: Tensor<4>,
     /// Matches of each pair (training-image pixels), at most `max_matches`.
     pub matches: Vec<Vec<FpMatch>>,

@@ -59,6 +59,7 @@ pub fn affine_rotation_deg(m: &Affine) -> f64 {
 /// One pair's FPFDCNN matches, with roll compensation.
 #[derive(Debug, Clone)]
 pub struct PairMatches {
+    /// Range-matcher matches between A's keypoints and `features_b`.
     pub matches: Vec<RangeMatch>,
     /// B's keypoints the matches index, in B's pixels.
     pub features_b: Features,

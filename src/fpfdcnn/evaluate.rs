@@ -47,6 +47,7 @@ pub struct MatchingEvalConfig {
     pub pairs: usize,
     /// Only frames `first..last` (exclusive) are used.
     pub first: usize,
+    /// End of the frame range, exclusive (`None`: the sequence's end).
     pub last: Option<usize>,
     /// Degradation of both images for the "blurred" half (e.g. `motion:9`).
     pub blur: Option<Degradation>,
@@ -54,7 +55,9 @@ pub struct MatchingEvalConfig {
     /// (a roll about the optical axis on top of the pair's own motion); matches are mapped
     /// back to B's pixels before they are scored. 0: the images as recorded.
     pub roll_deg: f64,
+    /// ORB detector and descriptor settings (the baseline).
     pub orb: OrbConfig,
+    /// The range matcher's settings (FPFDCNN's matching).
     pub range: RangeMatcherConfig,
     /// Centre the range matcher's windows by a global motion estimate
     /// ([`crate::range_matcher::guided_range_match`]); `None`: at the keypoint (the paper).
@@ -62,6 +65,7 @@ pub struct MatchingEvalConfig {
     /// Roll-compensated FPFDCNN matching ([`super::derotation`]; needs `guide`): image B
     /// turned back by the estimated roll when it reaches `min_deg`.
     pub derotation: DerotationConfig,
+    /// PnP + RANSAC settings of the relative pose (eqs 9-10).
     pub pnp: PnpConfig,
     /// Also measure the repeatability of Harris corners after homographic adaptation
     /// ([`super::adaptation`]: a pixel is averaged over the views it lies in, and a view's
@@ -106,9 +110,11 @@ impl Default for MatchingEvalConfig {
 pub struct PairResult {
     /// Frame indices of the pair.
     pub a: usize,
+    /// Frame index of B.
     pub b: usize,
     /// Correct (within 5 px) and judged matches.
     pub correct: usize,
+    /// Judged matches: those whose A keypoint has depth.
     pub matches: usize,
     /// Matches within 5 px of the pair's common offset.
     pub within_offset: usize,
@@ -120,15 +126,21 @@ pub struct PairResult {
 /// Results of one method on one condition (clear or blurred).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct ConditionResult {
+    /// Correct matches (within 5 px), over all pairs.
     pub correct: usize,
+    /// Judged matches, over all pairs.
     pub matches: usize,
+    /// Matching accuracy: `correct / matches`.
     pub accuracy: f64,
     /// errT (%) and errR (deg/m) pooled over the pairs whose PnP succeeded.
     pub err_t_percent: Option<f64>,
+    /// errR (deg/m), pooled over the pairs whose PnP succeeded.
     pub err_r_deg_per_m: Option<f64>,
     /// Mean rotation (deg) and translation (m) error of the PnP relative pose.
     pub mean_rot_error_deg: Option<f64>,
+    /// Mean translation error of the PnP relative pose, metres.
     pub mean_trans_error_m: Option<f64>,
+    /// Pairs whose PnP + RANSAC found no pose.
     pub pnp_failures: usize,
     /// Mean keypoints per image.
     pub keypoints: f64,
@@ -167,7 +179,9 @@ pub struct ConditionResult {
 /// One method's results.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct MethodResult {
+    /// Results on the clear frame pairs.
     pub clean: ConditionResult,
+    /// Results on the degraded frame pairs (`None` without `blur`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub blurred: Option<ConditionResult>,
 }
@@ -175,9 +189,13 @@ pub struct MethodResult {
 /// The whole evaluation.
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct MatchingReport {
+    /// The sequence's name.
     pub sequence: String,
+    /// Frame indices `(a, b)` of the pairs scored.
     pub pairs: Vec<(usize, usize)>,
+    /// Frame gap of the pairs.
     pub gap: usize,
+    /// The degradation of the blurred condition, in words (`None`: clear frames only).
     pub blur: Option<String>,
     /// Degrees image B was rolled by ([`MatchingEvalConfig::roll_deg`]).
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -188,7 +206,9 @@ pub struct MatchingReport {
     /// FPFDCNN's keypoint selection, in words (empty without FPFDCNN).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub fpfdcnn_detector: String,
+    /// ORB + brute-force matching.
     pub orb_bf: MethodResult,
+    /// FPFDCNN + the range matcher (`None` without a FPFDCNN model).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fpfdcnn_range: Option<MethodResult>,
     /// Repeatability (3 px) of the strongest Harris corners, as many as each method's

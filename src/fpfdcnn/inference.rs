@@ -210,14 +210,17 @@ pub struct Features {
     pub scores: Vec<f32>,
     /// `N x dim` row-major, L2-normalised.
     pub descriptors: Vec<f32>,
+    /// Descriptor length (values per keypoint).
     pub dim: usize,
 }
 
 impl Features {
+    /// Number of keypoints.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether there are no keypoints.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
@@ -291,7 +294,9 @@ pub struct FpfdcnnDetector {
     /// The network. On a CPU backend detection runs a packed copy of its weights made by
     /// [`Self::new`] ([`PackedFpfdcnn`]), so changing it afterwards does not change detection.
     pub model: Fpfdcnn,
+    /// The device the network runs on.
     pub device: Device,
+    /// Keypoint selection settings.
     pub config: DetectorConfig,
     packed: Option<PackedFpfdcnn>,
 }

@@ -191,10 +191,15 @@ pub fn ring_points(
 /// (`[M · per_point, D]`, normalised, point by point) around A's points (for the B -> A
 /// softmax) and around B's (for A -> B), with their additive masks (`[M, per_point]`).
 pub struct NearNegatives {
+    /// `[M · per_point, D]` descriptors of image A on rings around A's points (B -> A softmax).
     pub around_a: Tensor<2>,
+    /// `[M, per_point]` additive mask of `around_a` (0, or large negative near the positive).
     pub mask_a: Tensor<2>,
+    /// `[M · per_point, D]` descriptors of image B on rings around B's points (A -> B softmax).
     pub around_b: Tensor<2>,
+    /// `[M, per_point]` additive mask of `around_b` (0, or large negative near the positive).
     pub mask_b: Tensor<2>,
+    /// Near negatives per matched point.
     pub per_point: usize,
 }
 

@@ -18,6 +18,7 @@ pub struct AxisScale {
 }
 
 impl AxisScale {
+    /// Empty sums (no pairs).
     pub fn new() -> Self {
         Self::default()
     }

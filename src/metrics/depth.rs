@@ -10,20 +10,30 @@ use serde::{Deserialize, Serialize};
 /// Running sums over valid pixels.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct DepthAccumulator {
+    /// Valid pixels added.
     pub pixels: u64,
+    /// Sum of squared errors `(D − D*)²`, square metres.
     pub sum_sq: f64,
+    /// Sum of relative errors `|D − D*| / D*`.
     pub sum_rel: f64,
+    /// Pixels with `max(D/D*, D*/D)` below 1.25, 1.25² and 1.25³.
     pub within: [u64; 3],
 }
 
 /// Final depth metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct DepthMetrics {
+    /// RMS error (eq 18), metres.
     pub rms: f64,
+    /// Mean relative error (eq 19).
     pub rel: f64,
+    /// Share of pixels with δ < 1.25 (eq 20).
     pub delta1: f64,
+    /// Share of pixels with δ < 1.25² (eq 20).
     pub delta2: f64,
+    /// Share of pixels with δ < 1.25³ (eq 20).
     pub delta3: f64,
+    /// Number of valid pixels the metrics cover.
     pub pixels: u64,
 }
 
@@ -50,6 +60,7 @@ impl DepthAccumulator {
         }
     }
 
+    /// Adds another accumulator's sums to this one.
     pub fn merge(&mut self, o: &DepthAccumulator) {
         self.pixels += o.pixels;
         self.sum_sq += o.sum_sq;

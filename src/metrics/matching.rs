@@ -19,13 +19,17 @@ pub const CORRECT_MATCH_PX: f64 = 5.0;
 /// Correct matches among the judged ones (Table 6: "correct matching / match point").
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct MatchingAccuracy {
+    /// Judged matches whose B keypoint lies within [`CORRECT_MATCH_PX`] of the ground-truth
+    /// projection of its A partner.
     pub correct: usize,
+    /// Judged matches (those whose A keypoint has a depth reading).
     pub matches: usize,
     /// `correct / matches` (0 without matches).
     pub accuracy: f64,
 }
 
 impl MatchingAccuracy {
+    /// Counts with their ratio `correct / matches` (0 without matches).
     pub fn new(correct: usize, matches: usize) -> Self {
         MatchingAccuracy {
             correct,
@@ -198,7 +202,9 @@ pub const REPEATED_PX: f64 = 3.0;
 /// matching score) measure detector and descriptor together.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Repeatability {
+    /// Visible keypoints with a keypoint of the other image within [`REPEATED_PX`].
     pub repeated: usize,
+    /// Keypoints that ground truth carries onto a confirmed surface of the other image.
     pub visible: usize,
 }
 

@@ -58,6 +58,7 @@ pub struct PoseError {
     pub mean_trans_error: f64,
     /// Mean `∠(ΔR)` per segment, degrees.
     pub mean_rot_error_deg: f64,
+    /// Number of segments pooled.
     pub segments: usize,
     /// Σ L, metres.
     pub total_length: f64,

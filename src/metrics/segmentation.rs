@@ -15,20 +15,27 @@ use serde::{Deserialize, Serialize};
 /// pixels predicted as something that is not a class (`invalid[gt]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ConfusionMatrix {
+    /// Number of classes `k`.
     pub num_classes: usize,
+    /// `k × k` pixel counts, row = ground-truth class, column = predicted class.
     pub counts: Vec<u64>,
+    /// Per ground-truth class, pixels predicted as a value outside the classes.
     pub invalid: Vec<u64>,
 }
 
 /// Accuracy and IoU of one class (`None` where undefined).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ClassScore {
+    /// Pixel accuracy of the class, TP / its ground-truth pixels (averaged into MPA, eq 16).
     pub accuracy: Option<f64>,
+    /// Intersection over union, TP / (TP + FP + FN) (averaged into mIoU, eq 17).
     pub iou: Option<f64>,
+    /// Ground-truth pixels of the class (invalid predictions included).
     pub gt_pixels: u64,
 }
 
 impl ConfusionMatrix {
+    /// An empty matrix for `num_classes` classes.
     pub fn new(num_classes: usize) -> Self {
         ConfusionMatrix {
             num_classes,
@@ -53,6 +60,7 @@ impl ConfusionMatrix {
         }
     }
 
+    /// Adds another matrix's counts to this one (same number of classes).
     pub fn merge(&mut self, other: &ConfusionMatrix) {
         for (a, b) in self.counts.iter_mut().zip(&other.counts) {
             *a += b;

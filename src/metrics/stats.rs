@@ -6,11 +6,17 @@ use serde::{Deserialize, Serialize};
 /// RMSE, mean, median, std, min, max and count of a set of errors.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Stats {
+    /// Root mean square of the errors.
     pub rmse: f64,
+    /// Mean of the errors.
     pub mean: f64,
+    /// Median of the errors (the mean of the middle two for an even count).
     pub median: f64,
+    /// Standard deviation of the errors (population: divided by the count, as numpy's).
     pub std: f64,
+    /// Smallest error.
     pub min: f64,
+    /// Largest error.
     pub max: f64,
     /// Number of errors (pose pairs) the statistics are over.
     pub pairs: usize,

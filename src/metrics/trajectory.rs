@@ -40,7 +40,9 @@ impl std::str::FromStr for Alignment {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DeltaUnit {
+    /// Delta counted in frames (evo `--delta_unit f`).
     Frames,
+    /// Delta as travelled path length in metres (evo `--delta_unit m`).
     Metres,
 }
 
@@ -208,9 +210,11 @@ pub fn align(
 /// Absolute trajectory error (evo APE, translation part).
 #[derive(Debug, Clone)]
 pub struct Ape {
+    /// Statistics of the translation errors, metres.
     pub stats: Stats,
     /// Per associated pose, metres.
     pub errors: Vec<f64>,
+    /// The transform applied to the estimate to align it with the reference.
     pub alignment: Sim3,
     /// Associated reference poses.
     pub reference: Trajectory,
@@ -248,14 +252,21 @@ pub fn ape(
 /// the given delta.
 #[derive(Debug, Clone)]
 pub struct Rpe {
+    /// Statistics of the translation errors, metres.
     pub trans: Stats,
+    /// Statistics of the rotation errors, degrees.
     pub rot_deg: Stats,
+    /// Translation error of each pair, metres.
     pub trans_errors: Vec<f64>,
+    /// Rotation error of each pair, degrees.
     pub rot_errors_deg: Vec<f64>,
     /// Index pairs into the associated trajectories.
     pub pairs: Vec<(usize, usize)>,
+    /// The transform applied to the estimate to align it with the reference.
     pub alignment: Sim3,
+    /// Associated reference poses.
     pub reference: Trajectory,
+    /// Associated estimate poses after alignment.
     pub estimate: Trajectory,
 }
 
@@ -274,7 +285,9 @@ pub struct RpeAtKeyframes {
 /// Translation (m) and rotation (deg) statistics of a subset of an [`Rpe`]'s pairs.
 #[derive(Debug, Clone, Serialize)]
 pub struct RpeSplit {
+    /// Translation error statistics of the subset, metres.
     pub trans: Stats,
+    /// Rotation error statistics of the subset, degrees.
     pub rot_deg: Stats,
 }
 

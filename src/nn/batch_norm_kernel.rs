@@ -35,6 +35,8 @@ use rayon::prelude::*;
 /// and shifted by `beta`; with the per-channel mean and (biased) variance.
 #[backend_extension(Flex, NdArray, Autodiff)]
 pub trait BatchNormTrainOps: Backend {
+    /// Returns `(output, mean, variance)`, the statistics per channel (`[C]`), `epsilon` inside
+    /// the square root.
     fn batch_norm_train_fused(
         x: FloatTensor<Self>,
         gamma: FloatTensor<Self>,

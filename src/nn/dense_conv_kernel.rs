@@ -54,6 +54,7 @@ fn band_values() -> usize {
 /// stride and zero padding as the depthwise kernel's options.
 #[backend_extension(Flex, NdArray, Autodiff)]
 pub trait DenseConvOps: Backend {
+    /// `x` (`[N, C, H, W]`) convolved with `weight` (`[OC, C, KH, KW]`): `[N, OC, OH, OW]`.
     fn dense_conv(
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,

@@ -31,7 +31,9 @@ use rayon::prelude::*;
 /// Stride and zero padding `((top, bottom), (left, right))` of a depthwise convolution.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DepthwiseOptions {
+    /// Stride `[vertical, horizontal]`, pixels.
     pub stride: [usize; 2],
+    /// Zero padding `((top, bottom), (left, right))`, pixels.
     pub padding: [(usize, usize); 2],
 }
 
@@ -49,6 +51,7 @@ impl From<&ConvOptions<2>> for DepthwiseOptions {
 /// (`[C, 1, KH, KW]`), no bias.
 #[backend_extension(Flex, NdArray, Autodiff)]
 pub trait DepthwiseOps: Backend {
+    /// `x` (`[N, C, H, W]`) convolved channel by channel with `weight` (`[C, 1, KH, KW]`).
     fn depthwise_conv(
         x: FloatTensor<Self>,
         weight: FloatTensor<Self>,

@@ -35,6 +35,7 @@ const CHUNK: usize = 1 << 16;
 /// The extension: ELU of `x` with slope `alpha > 0` of the negative part.
 #[backend_extension(Flex, NdArray, Autodiff)]
 pub trait EluOps: Backend {
+    /// ELU of `x`, element-wise: `x` where positive, `alpha·(eˣ − 1)` elsewhere.
     fn elu_fused(x: FloatTensor<Self>, alpha: f32) -> FloatTensor<Self>;
 }
 

@@ -7,13 +7,18 @@ use rayon::prelude::*;
 /// An image in channels-last layout: `data[(y·w + x)·c + ch]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Nhwc {
+    /// Height, pixels.
     pub h: usize,
+    /// Width, pixels.
     pub w: usize,
+    /// Channels per pixel.
     pub c: usize,
+    /// Values, `h * w * c` of them, channels-last.
     pub data: Vec<f32>,
 }
 
 impl Nhwc {
+    /// An `h x w` image of `c` channels, all zero.
     pub fn zeros(h: usize, w: usize, c: usize) -> Self {
         Self {
             h,
@@ -23,6 +28,7 @@ impl Nhwc {
         }
     }
 
+    /// The whole image, borrowed (rows `w` pixels apart).
     pub fn view(&self) -> NhwcView<'_> {
         NhwcView {
             h: self.h,
@@ -38,11 +44,15 @@ impl Nhwc {
 /// convolution's output keeps the wide grid's extra columns): `data[(y·stride + x)·c + ch]`.
 #[derive(Debug, Clone, Copy)]
 pub struct NhwcView<'a> {
+    /// Height, pixels.
     pub h: usize,
+    /// Width, pixels (the pixels of a row that are the image's).
     pub w: usize,
+    /// Channels per pixel.
     pub c: usize,
     /// Pixels per row, at least `w`.
     pub stride: usize,
+    /// Values, channels-last, rows `stride` pixels apart.
     pub data: &'a [f32],
 }
 
@@ -67,12 +77,15 @@ impl NhwcView<'_> {
 /// What follows the convolution in the epilogue.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Activation {
+    /// No activation: the convolution's output as it is.
     Identity,
+    /// `max(x, 0)`.
     Relu,
     /// `min(max(x, 0), 6)` (MobileNetV2).
     Relu6,
     /// ELU with α = 1 (FPFDCNN, Table 12).
     Elu,
+    /// `1 / (1 + e⁻ˣ)`.
     Sigmoid,
 }
 

@@ -45,14 +45,28 @@ pub struct Scratch {
 /// Why a convolution cannot be packed (the caller keeps Burn's).
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum PackError {
+    /// The convolution's shape is not one packing supports (the message says which part).
     #[error("packed convolutions need groups = 1, dilation 1 and square kernels: {0}")]
     Unsupported(String),
+    /// Weights or batch-norm parameters that could not be read or do not match in size.
     #[error("reading convolution weights: {0}")]
     Data(String),
+    /// The input's channel count is not the convolution's.
     #[error("input has {got} channels, the convolution expects {expected}")]
-    Channels { got: usize, expected: usize },
+    Channels {
+        /// Channels of the input.
+        got: usize,
+        /// Input channels the convolution was packed for.
+        expected: usize,
+    },
+    /// The input is too small for the kernel or not a multiple of the stride.
     #[error("input {h}x{w} is too small or not a multiple of the stride for this convolution")]
-    Size { h: usize, w: usize },
+    Size {
+        /// Input height, pixels.
+        h: usize,
+        /// Input width, pixels.
+        w: usize,
+    },
 }
 
 /// A convolution's weights laid out for [`PackedConv::forward`].
@@ -79,12 +93,17 @@ pub struct PackedConv {
 /// The shape of a square convolution.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConvGeometry {
+    /// Output channels.
     pub cout: usize,
     /// Input channels per group.
     pub cin: usize,
+    /// Kernel side, pixels (square kernels).
     pub kernel: usize,
+    /// Stride, equal in both directions.
     pub stride: usize,
+    /// Zero padding on every side, pixels.
     pub padding: usize,
+    /// Number of channel groups (1 for a dense convolution).
     pub groups: usize,
 }
 
@@ -250,6 +269,7 @@ impl PackedConv {
         })
     }
 
+    /// Number of output channels.
     pub fn out_channels(&self) -> usize {
         self.cout
     }

@@ -33,6 +33,7 @@ pub const MAX_KERNEL: usize = 15;
 /// padding `kernel / 2` (padding never wins).
 #[backend_extension(Flex, NdArray, Autodiff)]
 pub trait SamePoolOps: Backend {
+    /// Max-pools `x` over `kernel × kernel` windows, output the same size as the input.
     fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self>;
 }
 

@@ -70,6 +70,7 @@ pub struct PnpResult {
     pub pose: Isometry3<f64>,
     /// Which correspondences agree with `pose` within the threshold.
     pub inliers: Vec<bool>,
+    /// Number of inliers (`true` entries of `inliers`).
     pub n_inliers: usize,
     /// RMS reprojection error over the inliers, pixels.
     pub rms_px: f64,

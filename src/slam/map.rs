@@ -19,6 +19,7 @@ use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
 /// or predicted depth) and its global descriptor signature.
 #[derive(Debug, Clone, Default)]
 pub struct KeyframeFeatures {
+    /// The keyframe's keypoints and descriptors.
     pub features: KeyFeatures,
     /// Camera coordinates of each keypoint, `None` without a usable depth.
     pub points_cam: Vec<Option<Point3<f64>>>,
@@ -96,11 +97,14 @@ pub fn points_from_depth(
 /// unreliable with strong radial distortion (the polynomial folds back).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ViewBounds {
+    /// Open range `(min, max)` of `X/Z`.
     pub x: (f64, f64),
+    /// Open range `(min, max)` of `Y/Z`.
     pub y: (f64, f64),
 }
 
 impl ViewBounds {
+    /// The bounds of `camera`, sampled along the image border.
     pub fn new(camera: &Camera) -> Self {
         let (w, h) = (camera.width as f64 - 1.0, camera.height as f64 - 1.0);
         let n = |x: f64, y: f64| camera.normalized(&Point2::new(x, y));
@@ -139,9 +143,13 @@ impl ViewBounds {
 /// A keyframe's images at the fusion resolution (every `stride`-th pixel).
 #[derive(Debug, Clone)]
 pub struct KeyframeView {
+    /// Subsampling step, full-resolution pixels per view pixel.
     pub stride: u32,
+    /// Colour image at the view resolution.
     pub rgb: RgbImage,
+    /// Depth (sensor or predicted) at the view resolution, metres; 0 = no reading.
     pub depth: DepthImage,
+    /// Semantic labels at the view resolution.
     pub labels: LabelImage,
     /// The depth as the sensor gave it, sampled as `depth`, before the map's depth-edge
     /// filter: what the keyframe alignments read when `dense.edges_on_filtered_depth` is
@@ -182,15 +190,19 @@ impl KeyframeView {
 /// A keyframe of the map.
 #[derive(Debug, Clone)]
 pub struct KeyFrame {
+    /// Index of this keyframe in [`Map::keyframes`] (creation order).
     pub id: usize,
     /// Index of its frame in the sequence.
     pub frame_index: usize,
+    /// Time stamp of its frame, seconds.
     pub stamp: f64,
     /// The pose tracking gave it (camera-to-world), never changed.
     pub odom_pose: Pose,
     /// The current estimate, corrected by the pose graph.
     pub pose: Pose,
+    /// Ground-truth pose (camera-to-world) at its stamp, when known.
     pub gt_pose: Option<Pose>,
+    /// Keypoints, their 3D points and signature.
     pub track: Arc<KeyframeFeatures>,
     /// RGB, depth (sensor or predicted) and labels at the fusion resolution.
     pub view: KeyframeView,
@@ -224,9 +236,13 @@ pub enum ConstraintKind {
 /// A relative-pose constraint `T_a⁻¹ T_b` between keyframes `a < b`.
 #[derive(Debug, Clone)]
 pub struct Constraint {
+    /// Id of the earlier keyframe.
     pub a: usize,
+    /// Id of the later keyframe.
     pub b: usize,
+    /// Relative pose `T_a⁻¹ T_b`.
     pub relative: Pose,
+    /// How the constraint was found.
     pub kind: ConstraintKind,
     /// PnP inliers that verified it (0 for an unverified odometry edge).
     pub inliers: usize,
@@ -237,7 +253,9 @@ pub struct Constraint {
 /// Keyframes and constraints.
 #[derive(Debug, Clone, Default)]
 pub struct Map {
+    /// Keyframes in creation order (index = id).
     pub keyframes: Vec<KeyFrame>,
+    /// Relative-pose constraints between keyframe pairs.
     pub constraints: Vec<Constraint>,
     /// Incremented every time the poses are corrected.
     pub epoch: u64,

@@ -40,10 +40,15 @@ impl std::str::FromStr for TrajectoryKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RoomKind {
+    /// Desks, bookshelves, cabinets and boxes, often a whiteboard.
     Office,
+    /// A bed, dresser and wardrobe.
     Bedroom,
+    /// A sofa, TV stand, armchair, rug and coffee table.
     Living,
+    /// Mostly bookshelves, with a table in the middle.
     Library,
+    /// Counters, a fridge and a table in the middle.
     Kitchen,
 }
 
@@ -85,6 +90,7 @@ impl Default for RoomConfig {
 }
 
 impl RoomConfig {
+    /// Checks the ranges; the message names the field.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(Error::msg(m));
         for k in 0..2 {
@@ -152,6 +158,7 @@ pub struct SensorConfig {
     pub depth_holes: bool,
     /// Depth readings outside `[min_depth, max_depth]` metres are dropped.
     pub min_depth: f64,
+    /// Upper end of the kept depth range, metres.
     pub max_depth: f64,
     /// Colour noise standard deviation (8-bit levels, at mid-grey).
     pub rgb_noise: f64,
@@ -190,6 +197,7 @@ impl SensorConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BlurConfig {
+    /// Render motion blur at all.
     pub enabled: bool,
     /// Exposure time, milliseconds.
     pub exposure_ms: f64,
@@ -274,16 +282,23 @@ pub struct SynthConfig {
     pub fps: f64,
     /// Timestamp of the first frame, seconds (a TUM-like epoch).
     pub start_time: f64,
+    /// Camera motion of each sequence.
     pub trajectory: TrajectoryKind,
     /// `fr1`, `fr2`, `fr3` or the path of a camera TOML file.
     pub camera: String,
     /// `WxH`; empty: the camera's own size. The intrinsics are scaled to it.
     pub resolution: String,
+    /// Room generation.
     pub room: RoomConfig,
+    /// Trajectory shape.
     pub motion: MotionConfig,
+    /// Shading.
     pub render: RenderConfig,
+    /// Sensor imperfections.
     pub sensor: SensorConfig,
+    /// Motion blur.
     pub blur: BlurConfig,
+    /// What to write.
     pub output: OutputConfig,
 }
 

@@ -60,7 +60,9 @@ pub fn floor(x: f32) -> f32 {
 
 /// Fast `floor` and a fractional part in `[0, 1)` as methods.
 pub trait FastFloor {
+    /// [`floor`] of `self`.
     fn ff(self) -> Self;
+    /// `self - floor(self)`, in `[0, 1)`.
     fn fr(self) -> Self;
 }
 

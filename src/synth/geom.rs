@@ -23,13 +23,19 @@ pub enum Shape {
 /// the yaw `(cos, sin)` about `z` around `center`; local `+y` is its "front".
 #[derive(Debug, Clone)]
 pub struct Solid {
+    /// Box or vertical cylinder.
     pub shape: Shape,
+    /// Centre in the world frame, metres.
     pub center: V3,
+    /// Half extents along the local axes, metres (a cylinder: radius `x`, half height `z`).
     pub half: V3,
+    /// Cosine of the yaw about `z`.
     pub cos: f32,
+    /// Sine of the yaw about `z`.
     pub sin: f32,
     /// NYU40 label (0-based).
     pub label: u8,
+    /// Surface appearance (material and its colours).
     pub material: Material,
     /// Per-solid texture variation.
     pub seed: u32,
@@ -41,12 +47,16 @@ pub type Face = u8;
 /// A ray `o + t d` (`d` need not be unit length) with its precomputed inverse.
 #[derive(Debug, Clone, Copy)]
 pub struct Ray {
+    /// Origin.
     pub o: V3,
+    /// Direction (not necessarily unit length).
     pub d: V3,
+    /// Component-wise inverse of `d`.
     pub inv: V3,
 }
 
 impl Ray {
+    /// A ray from `o` along `d`, its inverse direction precomputed.
     pub fn new(o: V3, d: V3) -> Self {
         Ray {
             o,
@@ -59,8 +69,11 @@ impl Ray {
 /// The nearest intersection along a ray.
 #[derive(Debug, Clone, Copy)]
 pub struct Hit {
+    /// Ray parameter of the hit: the point is `o + t d`.
     pub t: f32,
+    /// Index of the solid hit.
     pub solid: u32,
+    /// Face hit (see [`Face`]).
     pub face: Face,
     /// Hit point in the solid's local frame, relative to its centre.
     pub local: V3,
@@ -151,6 +164,7 @@ impl Prim {
     const ROTATED: u8 = 1;
     const CYLINDER: u8 = 2;
 
+    /// The compact form of solid `s`, with index `id`.
     pub fn new(s: &Solid, id: u32) -> Self {
         let (min, max) = s.bounds();
         let quarter = (s.cos == 0.0 || s.sin == 0.0) && (s.cos.abs() == 1.0 || s.sin.abs() == 1.0);

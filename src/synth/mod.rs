@@ -93,9 +93,13 @@ pub fn work_units(cfg: &SynthConfig) -> u64 {
 /// What [`generate`] wrote.
 #[derive(Debug, Clone)]
 pub struct Summary {
+    /// Sequence frames written, over all scenes.
     pub frames: usize,
+    /// NYU-layout views listed in `train.txt`.
     pub nyu_train: usize,
+    /// NYU-layout views listed in `test.txt`.
     pub nyu_test: usize,
+    /// Label pixels per class over the sequences and the NYU-layout views.
     pub histogram: Histogram,
 }
 

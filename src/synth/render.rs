@@ -24,6 +24,7 @@ pub struct Px {
     pub depth: f32,
     /// `|cos|` of the angle between the ray and the surface normal.
     pub cos: f32,
+    /// NYU40 class of the surface hit (void where the ray hit nothing).
     pub label: u8,
     /// [`FLAG_NO_DEPTH`], [`FLAG_DARK`].
     pub flags: u8,
@@ -37,15 +38,21 @@ pub const FLAG_DARK: u8 = 2;
 /// A rendered image, row-major.
 #[derive(Debug, Clone)]
 pub struct Render {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// The pixels, row-major.
     pub px: Vec<Px>,
 }
 
 /// Renders a scene with one camera.
 pub struct Renderer<'a> {
+    /// The scene rendered.
     pub scene: &'a Scene,
+    /// The camera (intrinsics, distortion and image size).
     pub camera: Camera,
+    /// Shading settings.
     pub config: RenderConfig,
     /// Undistorted normalised coordinates `(X/Z, Y/Z)` of each pixel.
     rays: Vec<[f32; 2]>,
@@ -57,6 +64,7 @@ pub struct Renderer<'a> {
 const LIGHT_GAIN: f32 = 3.0;
 
 impl<'a> Renderer<'a> {
+    /// Prepares the pixel rays and a shadow map for each light that casts shadows.
     pub fn new(scene: &'a Scene, camera: &Camera, config: &RenderConfig) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let rays = (0..w * h)

@@ -17,17 +17,24 @@ use serde::Serialize;
 /// A point light; `shadows` casts shadow rays towards it.
 #[derive(Debug, Clone, Serialize)]
 pub struct Light {
+    /// Position in the world frame, metres.
     pub pos: [f32; 3],
+    /// Linear RGB intensity.
     pub color: Rgb,
+    /// Whether shading casts shadow rays towards it.
     pub shadows: bool,
 }
 
 /// One straight wall: from `a` to `b` (counter-clockwise), `n` points into the room.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct Wall {
+    /// Start point `(x, y)` on the floor, metres.
     pub a: [f32; 2],
+    /// End point `(x, y)` on the floor, metres.
     pub b: [f32; 2],
+    /// Unit normal pointing into the room.
     pub n: [f32; 2],
+    /// Length from `a` to `b`, metres.
     pub len: f32,
 }
 
@@ -56,12 +63,17 @@ impl Wall {
 /// The room shell.
 #[derive(Debug, Clone, Serialize)]
 pub struct Room {
+    /// Extent along `x`, metres.
     pub width: f32,
+    /// Extent along `y`, metres.
     pub depth: f32,
+    /// Floor-to-ceiling height, metres.
     pub height: f32,
     /// The solid block cut out of an L-shaped room: `[x0, y0, x1, y1]`.
     pub notch: Option<[f32; 4]>,
+    /// The footprint's walls, counter-clockwise.
     pub walls: Vec<Wall>,
+    /// What kind of room it is (chooses the furniture).
     pub kind: RoomKind,
 }
 
@@ -88,8 +100,11 @@ impl Room {
 /// A generated scene, ready to render.
 #[derive(Debug, Clone)]
 pub struct Scene {
+    /// The room shell.
     pub room: Room,
+    /// Every solid of the scene, shell first, each with its NYU40 label.
     pub solids: Vec<Solid>,
+    /// Point lights.
     pub lights: Vec<Light>,
     /// Ambient light (stands in for inter-reflections).
     pub ambient: Rgb,

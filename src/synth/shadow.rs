@@ -19,6 +19,7 @@ pub struct ShadowMap {
 }
 
 impl ShadowMap {
+    /// An empty cube map of a light at `pos` with at least `n` texels per face side.
     pub fn new(pos: V3, n: usize) -> Self {
         let n = n.div_ceil(TILE).max(1) * TILE;
         let per_face = (n / TILE) * (n / TILE);

@@ -20,61 +20,124 @@ pub const fn srgb(r: u8, g: u8, b: u8) -> Rgb {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Material {
     /// Painted wall: nearly uniform (low texture).
-    Paint { color: Rgb },
+    Paint {
+        /// Paint colour.
+        color: Rgb,
+    },
     /// Ceiling plaster.
-    Plaster { color: Rgb },
+    Plaster {
+        /// Plaster colour.
+        color: Rgb,
+    },
     /// Brick wall with mortar joints.
-    Brick { color: Rgb, mortar: Rgb },
+    Brick {
+        /// Brick colour (varied brick by brick).
+        color: Rgb,
+        /// Colour of the mortar joints.
+        mortar: Rgb,
+    },
     /// Wooden floor boards along local x.
-    Planks { color: Rgb },
+    Planks {
+        /// Board colour.
+        color: Rgb,
+    },
     /// Square tiles with grout lines; `checker` alternates two shades.
     Tiles {
+        /// Tile colour.
         color: Rgb,
+        /// Colour of the grout lines.
         grout: Rgb,
+        /// Tile side, metres.
         size: f32,
+        /// Darken every other tile (checkerboard).
         checker: bool,
     },
     /// Carpet or rug: fine noise and mottling.
-    Carpet { color: Rgb, pattern: bool },
+    Carpet {
+        /// Pile colour.
+        color: Rgb,
+        /// Add a rug's border and diamond lattice.
+        pattern: bool,
+    },
     /// Wood with grain along the longer side of each face.
-    Wood { color: Rgb },
+    Wood {
+        /// Base wood colour.
+        color: Rgb,
+    },
     /// Woven fabric (sofas, beds, pillows, bags).
-    Fabric { color: Rgb },
+    Fabric {
+        /// Fabric colour.
+        color: Rgb,
+    },
     /// Curtain fabric with vertical folds.
-    Curtain { color: Rgb },
+    Curtain {
+        /// Curtain colour.
+        color: Rgb,
+    },
     /// A framed picture or poster on its `+y` face.
-    Picture { frame: Rgb },
+    Picture {
+        /// Frame colour (also of the other faces).
+        frame: Rgb,
+    },
     /// A book: spine on `+y`, covers across its thinnest side, pages elsewhere.
-    Book { color: Rgb },
+    Book {
+        /// Cover colour.
+        color: Rgb,
+    },
     /// Monitor or television: dark bezel, screen on `+y` (emissive when on).
-    Screen { on: bool },
+    Screen {
+        /// The screen shows an emissive image (off: a dark reflection).
+        on: bool,
+    },
     /// Window frame with glass on `+y`; the glass shows a distant outdoor view.
-    Window { frame: Rgb },
+    Window {
+        /// Frame and mullion colour.
+        frame: Rgb,
+    },
     /// Horizontal slats.
-    Blinds { color: Rgb },
+    Blinds {
+        /// Slat colour.
+        color: Rgb,
+    },
     /// Brushed metal.
-    Metal { color: Rgb },
+    Metal {
+        /// Metal colour.
+        color: Rgb,
+    },
     /// Smooth plastic or paint.
-    Plastic { color: Rgb },
+    Plastic {
+        /// Surface colour.
+        color: Rgb,
+    },
     /// Printed paper (text lines on the top face).
     Paper,
     /// Whiteboard with marker strokes on `+y`.
     Whiteboard,
     /// Furniture front with a grid of drawers (`rows x cols`) or doors on `+y`.
     Drawers {
+        /// Front colour.
         color: Rgb,
+        /// Rows of drawers (cells taller than 0.45 m are doors).
         rows: u8,
+        /// Columns of drawers or doors.
         cols: u8,
+        /// Wood grain instead of a plain finish.
         wood: bool,
     },
     /// Panel door (both `±y` faces).
-    Door { color: Rgb },
+    Door {
+        /// Door colour.
+        color: Rgb,
+    },
     /// Cardboard with a tape strip on top.
     Cardboard,
     /// Plant leaves.
     Foliage,
     /// Glowing lamp shade.
-    LampShade { color: Rgb },
+    LampShade {
+        /// Shade colour, also the colour of its glow.
+        color: Rgb,
+    },
     /// Ceiling light panel.
     CeilingLight,
     /// Mirror: a soft grey-blue gradient standing in for a reflection.
@@ -84,7 +147,9 @@ pub enum Material {
 /// What the renderer needs from a material at a hit.
 #[derive(Debug, Clone, Copy)]
 pub struct Surface {
+    /// Linear reflectance at the hit.
     pub albedo: Rgb,
+    /// Emitted linear radiance (screens, lamp shades, the view through windows).
     pub emission: Rgb,
     /// No depth-sensor return (glass).
     pub no_depth: bool,
@@ -92,6 +157,7 @@ pub struct Surface {
 
 /// A hit as seen by a material.
 pub struct TexCtx {
+    /// The face hit ([`Face`]).
     pub face: Face,
     /// Hit point relative to the solid's minimum corner, local frame, metres.
     pub p: V3,
@@ -99,6 +165,7 @@ pub struct TexCtx {
     pub size: V3,
     /// Ray direction in the local frame.
     pub dir: V3,
+    /// The solid's texture seed.
     pub seed: u32,
 }
 
@@ -188,7 +255,8 @@ impl FaceUv {
 }
 
 impl Material {
-    /// Whether the material keeps a depth reading (all but glass).
+    /// The material at a hit: its reflectance, its emission and whether a depth sensor gets a
+    /// return from it (all but glass).
     pub fn surface(&self, ctx: &TexCtx) -> Surface {
         let f = FaceUv::of(ctx);
         let FaceUv {

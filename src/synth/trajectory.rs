@@ -24,15 +24,20 @@ use std::f64::consts::{PI, TAU};
 /// the world `z` axis from `+x`, pitch up, roll about the optical axis).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Key {
+    /// Camera position in the world, metres.
     pub pos: [f64; 3],
+    /// Yaw about the world `z` axis from `+x`, radians.
     pub yaw: f64,
+    /// Pitch up, radians.
     pub pitch: f64,
+    /// Roll about the optical axis, radians.
     pub roll: f64,
 }
 
 /// A smooth camera motion.
 #[derive(Debug, Clone)]
 pub struct Motion {
+    /// The kind of motion.
     pub kind: TrajectoryKind,
     /// Time of the first key, seconds (before 0 so that blur can look back).
     t0: f64,

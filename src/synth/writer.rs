@@ -49,6 +49,7 @@ impl Default for Histogram {
 }
 
 impl Histogram {
+    /// Counts every pixel of a label image (values past the classes count as void).
     pub fn add_image(&mut self, labels: &GrayImage) {
         for p in labels.pixels() {
             let l = p.0[0];
@@ -61,6 +62,7 @@ impl Histogram {
         }
     }
 
+    /// Adds another histogram's counts.
     pub fn add(&mut self, other: &Histogram) {
         for (a, b) in self.0.iter_mut().zip(other.0.iter()) {
             *a += b;
@@ -90,10 +92,15 @@ impl Histogram {
 
 /// The images of one frame.
 pub struct FrameFiles {
+    /// The rendered colour image.
     pub rgb: RgbImage,
+    /// The sensor-model depth, metres (written to `depth/`).
     pub depth: DepthImage,
+    /// The exact depth, metres (written to `depth_gt/` when present).
     pub depth_gt: Option<DepthImage>,
+    /// NYU40 labels (0-39, 255 = void).
     pub labels: GrayImage,
+    /// Also write the labels in the class palette to `labels_color/`.
     pub color_labels: bool,
 }
 

@@ -24,6 +24,7 @@ pub struct TrainState {
     pub epoch: usize,
     /// Optimizer steps so far.
     pub step: u64,
+    /// Per-epoch metrics so far.
     pub history: History,
 }
 
@@ -66,14 +67,18 @@ pub fn checkpoint_name(epoch: usize) -> String {
 /// A complete checkpoint on disk.
 #[derive(Debug, Clone)]
 pub struct Checkpoint {
+    /// The checkpoint's folder (`RUN/checkpoints/epoch-NNNN`).
     pub dir: PathBuf,
+    /// Its `state.json`.
     pub state: TrainState,
 }
 
 impl Checkpoint {
+    /// The model weights, `model.bpk`.
     pub fn model_path(&self) -> PathBuf {
         self.dir.join("model.bpk")
     }
+    /// The optimizer state, `optimizer.bpk`.
     pub fn optimizer_path(&self) -> PathBuf {
         self.dir.join("optimizer.bpk")
     }
@@ -82,6 +87,7 @@ impl Checkpoint {
 /// A training run's folder.
 #[derive(Debug, Clone)]
 pub struct RunDir {
+    /// The run folder.
     pub root: PathBuf,
     /// How many epoch checkpoints to keep (the newest ones); 0 keeps all.
     pub keep: usize,

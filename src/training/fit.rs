@@ -46,10 +46,13 @@ pub struct Step {
 pub struct Plot {
     /// File name in the run folder.
     pub file: &'static str,
+    /// The chart's title.
     pub title: &'static str,
+    /// Label of the y axis.
     pub y_label: &'static str,
     /// Every metric whose name contains one of these.
     pub keys: &'static [&'static str],
+    /// Whether the y axis is logarithmic.
     pub log_y: bool,
 }
 
@@ -108,15 +111,20 @@ pub trait Learner {
 
 /// The settings of a run every network shares (the training config's skeleton).
 pub struct Fit<'a> {
+    /// The run folder, where checkpoints and metrics go.
     pub run: &'a RunDir,
     /// The config saved beside every checkpoint.
     pub config: &'a str,
+    /// Seed of the data order and of each batch's random choices.
     pub seed: u64,
+    /// Number of epochs.
     pub epochs: usize,
+    /// Training samples per step.
     pub batch_size: usize,
     /// Each batch in this many parts, trained one after the other with their gradients
     /// summed before the step: peak memory of a batch this many times smaller.
     pub accumulate: usize,
+    /// Optimizer and learning-rate schedule.
     pub optimizer: &'a OptimizerConfig,
     /// Continue from the run's last checkpoint (the model given is then only its shape).
     pub resume: bool,
@@ -229,7 +237,9 @@ pub const PREFETCH: usize = 2;
 /// waited for it (the part loading added to the epoch).
 #[derive(Debug, Default, Clone, Copy)]
 pub struct Loading {
+    /// Time the loader thread spent loading batches.
     pub load: Duration,
+    /// Time the steps waited for the loader.
     pub wait: Duration,
 }
 

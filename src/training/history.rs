@@ -11,8 +11,11 @@ use std::path::Path;
 /// Metrics of one epoch (`epoch` counts from 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpochRecord {
+    /// The epoch, counted from 1.
     pub epoch: usize,
+    /// Learning rate of the epoch (the schedule's).
     pub lr: f64,
+    /// Wall time of the epoch, seconds.
     pub seconds: f64,
     /// Named values, e.g. `train_loss`, `val_miou`.
     pub values: BTreeMap<String, f64>,
@@ -21,10 +24,12 @@ pub struct EpochRecord {
 /// All epochs so far.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct History {
+    /// One record per epoch run.
     pub epochs: Vec<EpochRecord>,
 }
 
 impl History {
+    /// Adds a record, replacing any earlier one of the same epoch.
     pub fn push(&mut self, r: EpochRecord) {
         self.epochs.retain(|e| e.epoch != r.epoch);
         self.epochs.push(r);

@@ -45,7 +45,9 @@ pub struct RunOptions {
     pub out: Option<std::path::PathBuf>,
     /// Continue from the last checkpoint in the output folder.
     pub resume: bool,
+    /// Backend (default: the config's `backend`).
     pub backend: Option<BackendKind>,
+    /// Number of epochs (default: the config's `epochs`).
     pub epochs: Option<usize>,
     /// Hide the progress bar (logs still print one line per epoch).
     pub quiet: bool,

@@ -8,8 +8,11 @@ use rayon::prelude::*;
 /// threshold for which it is still a corner.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FastCorner {
+    /// Column of the corner in its pyramid level's image, pixels.
     pub x: u32,
+    /// Row of the corner in its pyramid level's image, pixels.
     pub y: u32,
+    /// FAST-9 score: the largest threshold at which the pixel is still a corner.
     pub score: u8,
 }
 

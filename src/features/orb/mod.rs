@@ -101,6 +101,7 @@ impl OrbConfig {
 pub struct OrbKeypoint {
     /// Position in full-resolution (level-0) pixels.
     pub x: f32,
+    /// y position in level-0 pixels.
     pub y: f32,
     /// Pyramid level (OpenCV's octave).
     pub level: usize,
@@ -127,15 +128,19 @@ impl OrbKeypoint {
 /// Keypoints and their descriptors (same order).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct OrbFeatures {
+    /// The detected keypoints.
     pub keypoints: Vec<OrbKeypoint>,
+    /// One descriptor per keypoint, in the same order.
     pub descriptors: Vec<Descriptor>,
 }
 
 impl OrbFeatures {
+    /// Number of features.
     pub fn len(&self) -> usize {
         self.keypoints.len()
     }
 
+    /// Whether there are no features.
     pub fn is_empty(&self) -> bool {
         self.keypoints.is_empty()
     }

@@ -114,14 +114,17 @@ pub struct Track {
 pub struct BaSummary {
     /// Poses in the problem, and how many of them were free.
     pub keyframes: usize,
+    /// Poses the adjustment was free to move (the others held fixed).
     pub free_keyframes: usize,
     /// Tracks and their observations.
     pub tracks: usize,
+    /// Observations of the tracks, over all of them.
     pub observations: usize,
     /// Observations dropped by the χ² gate.
     pub outliers: usize,
     /// Robust cost before and after (the latter over the gated observations).
     pub initial_cost: f64,
+    /// Robust cost after the adjustment, over the gated observations.
     pub final_cost: f64,
     /// Levenberg-Marquardt iterations run.
     pub iterations: usize,

@@ -38,15 +38,23 @@ use std::time::Instant;
 pub struct CorrectionStats {
     /// Keyframe pairs verified by PnP.
     pub pairs_tried: usize,
+    /// Odometry edges, one from each new keyframe to its predecessor.
     pub odometry_edges: usize,
+    /// Odometry edges whose keyframe pair PnP verified.
     pub odometry_verified: usize,
+    /// Constraints to keyframes chosen at random.
     pub random_constraints: usize,
+    /// Constraints to keyframes chosen by camera proximity.
     pub proximity_constraints: usize,
+    /// Constraints to keyframes chosen by descriptor similarity.
     pub similarity_constraints: usize,
+    /// Pose-graph optimisations run.
     pub optimisations: usize,
     /// Robust cost before and after the last optimisation.
     pub last_initial_cost: Option<f64>,
+    /// Robust cost after the last optimisation.
     pub last_final_cost: Option<f64>,
+    /// Levenberg-Marquardt iterations of the last optimisation.
     pub last_iterations: usize,
 }
 
@@ -59,7 +67,9 @@ pub struct LocalSummary {
     pub observations: usize,
     /// Keyframes whose depth was rescaled, and the extreme factors.
     pub rescaled_keyframes: usize,
+    /// Smallest depth rescaling factor applied (1 when none).
     pub min_scale: f64,
+    /// Largest depth rescaling factor applied (1 when none).
     pub max_scale: f64,
 }
 
@@ -67,6 +77,7 @@ pub struct LocalSummary {
 pub struct Corrector {
     cfg: SlamConfig,
     camera: Camera,
+    /// Counts so far.
     pub stats: CorrectionStats,
     /// Edges from outside the keypoints (dense keyframe alignment), joined to the
     /// constraints' edges in every later solve.
@@ -74,6 +85,7 @@ pub struct Corrector {
 }
 
 impl Corrector {
+    /// A correction stage for `camera` with the settings of `cfg`.
     pub fn new(cfg: SlamConfig, camera: Camera) -> Self {
         Corrector {
             cfg,

@@ -36,6 +36,7 @@ pub struct KeyframeAlignmentSummary {
     pub loop_edges: usize,
     /// Median change of the starting relative pose over the kept pairs, metres.
     pub median_correction: f64,
+    /// Wall time of the alignments, seconds.
     pub seconds: f64,
 }
 
@@ -173,6 +174,7 @@ pub struct PairAlignment {
 }
 
 impl PairAlignment {
+    /// An aligner for `camera` with the `[dense]` settings, depth range and pixel stride of `cfg`.
     pub fn new(camera: &Camera, cfg: &SlamConfig) -> Self {
         let stride = cfg.map.pixel_stride;
         Self {

@@ -55,9 +55,13 @@ pub fn window(map: &Map, k: usize, size: usize) -> Vec<usize> {
 /// them are fixed, their poses, and the tracks with observations indexed into `ids`.
 #[derive(Debug, Clone)]
 pub struct LocalProblem {
+    /// Map indices of the keyframes taking part, sorted.
     pub ids: Vec<usize>,
+    /// Per keyframe of `ids`: whether its pose is held fixed.
     pub fixed: Vec<bool>,
+    /// Per keyframe of `ids`: its camera-to-world pose (the starting point).
     pub poses: Vec<Pose>,
+    /// World points with their observations, keyframes indexed into `ids`.
     pub tracks: Vec<Track>,
 }
 
@@ -194,16 +198,22 @@ pub struct LocalBaStats {
     pub runs: usize,
     /// Free and fixed keyframes, tracks, observations and gated observations, summed.
     pub free_keyframes: usize,
+    /// Keyframes taking part with fixed poses, summed.
     pub fixed_keyframes: usize,
+    /// Tracks, summed.
     pub tracks: usize,
+    /// Observations, summed.
     pub observations: usize,
+    /// Observations dropped by the χ² gate, summed.
     pub outliers: usize,
     /// Wall time, summed and the largest single adjustment, seconds.
     pub seconds: f64,
+    /// Wall time of the longest single adjustment, seconds.
     pub max_seconds: f64,
 }
 
 impl LocalBaStats {
+    /// Adds one adjustment's summary and its wall time, seconds.
     pub fn add(&mut self, s: &BaSummary, seconds: f64) {
         self.runs += 1;
         self.free_keyframes += s.free_keyframes;

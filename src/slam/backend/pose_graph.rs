@@ -81,8 +81,11 @@ fn jr_inv(e: &Vector6<f64>) -> Matrix6<f64> {
 /// An edge: measured `Z = T_i⁻¹ T_j` with its information matrix.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Edge {
+    /// Index of the first pose.
     pub i: usize,
+    /// Index of the second pose.
     pub j: usize,
+    /// Measured relative pose `Z = T_i⁻¹ T_j`.
     pub measurement: Pose,
     /// Information (inverse covariance, symmetric) of the error `(ρ, φ)`.
     pub information: Matrix6<f64>,
@@ -106,7 +109,9 @@ pub fn sqrt_information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vect
 /// Solver settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LmSettings {
+    /// Most Levenberg-Marquardt iterations.
     pub iterations: usize,
+    /// Robust kernel of edges with `robust` set.
     pub kernel: RobustKernel,
     /// Kernel scale on the whitened error norm.
     pub delta: f64,
@@ -129,8 +134,11 @@ impl Default for LmSettings {
 /// What the optimisation did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmSummary {
+    /// Robust cost ([`cost`]) before the optimisation.
     pub initial_cost: f64,
+    /// Robust cost ([`cost`]) after it.
     pub final_cost: f64,
+    /// Iterations run.
     pub iterations: usize,
 }
 

@@ -20,18 +20,31 @@ const MAX_KEYPOINTS: usize = 100_000;
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SlamConfig {
+    /// Keypoints and descriptors.
     pub features: FeatureConfig,
+    /// The range matcher.
     pub matcher: MatcherConfig,
+    /// PnP + RANSAC pose estimation.
     pub pnp: PnpSettings,
+    /// Frame tracking.
     pub tracking: TrackingConfig,
+    /// RGB-D dense pose refinement (ICP) and keyframe alignment edges.
     pub dense: DenseConfig,
+    /// Keyframe selection.
     pub keyframes: KeyframeConfig,
+    /// The dense semantic map.
     pub map: MapConfig,
+    /// Multi-view depth of monocular keyframes.
     pub multiview: MultiviewConfig,
+    /// Voxel label voting.
     pub labels: LabelVoteConfig,
+    /// Data correction: pose graph and local correction.
     pub correction: CorrectionConfig,
+    /// Bundle adjustment after the final pose-graph solve.
     pub bundle_adjustment: BundleAdjustmentConfig,
+    /// Monocular scale anchors.
     pub scale: ScaleConfig,
+    /// Threads and reporting.
     pub system: SystemConfig,
 }
 
@@ -88,6 +101,7 @@ impl Default for FeatureConfig {
 }
 
 impl FeatureConfig {
+    /// The FPFDCNN detector settings these fields give.
     pub fn detector(&self) -> DetectorConfig {
         DetectorConfig {
             threshold: self.fpfdcnn_threshold,
@@ -102,6 +116,7 @@ impl FeatureConfig {
         }
     }
 
+    /// The ORB extractor settings these fields give.
     pub fn orb(&self) -> crate::features::OrbConfig {
         crate::features::OrbConfig {
             n_features: self.top_k,
@@ -151,6 +166,7 @@ impl Default for MatcherConfig {
 }
 
 impl MatcherConfig {
+    /// The range matcher settings of guided matching (`window`, `ratio`).
     pub fn range(&self) -> RangeMatcherConfig {
         RangeMatcherConfig {
             window: self.window,
@@ -160,6 +176,7 @@ impl MatcherConfig {
         }
     }
 
+    /// The range matcher settings of wide-window matching (`wide_window`, `wide_ratio`).
     pub fn wide(&self) -> RangeMatcherConfig {
         RangeMatcherConfig {
             window: self.wide_window,
@@ -202,6 +219,7 @@ impl Default for PnpSettings {
 }
 
 impl PnpSettings {
+    /// The PnP + RANSAC settings (at least 4 inliers required).
     pub fn pnp(&self) -> PnpConfig {
         PnpConfig {
             threshold_px: self.threshold_px,
@@ -222,6 +240,7 @@ pub struct TrackingConfig {
     pub match_previous_frame: bool,
     /// Depth readings outside `[min_depth, max_depth]` metres give no 3D point.
     pub min_depth: f64,
+    /// Upper end of the usable depth range, metres.
     pub max_depth: f64,
     /// Keyframes tried by relocalisation (most similar mean descriptors first).
     pub relocalisation_candidates: usize,
@@ -282,6 +301,7 @@ pub struct DenseConfig {
     /// The refined pose is kept only within this translation (metres) and rotation (degrees)
     /// of the pose from the keypoints.
     pub agree_translation: f64,
+    /// Rotation bound of `agree_translation`'s check, degrees.
     pub agree_rotation_deg: f64,
     /// Keyframe-to-keyframe edges: each keyframe's depth (at the fusion resolution) is aligned
     /// to this many preceding keyframes' by the same ICP, and each alignment that agrees with
@@ -299,14 +319,17 @@ pub struct DenseConfig {
     /// frames' `agree_*`: a keyframe pair's start can be centimetres off where tracking
     /// slipped, which is where its alignment matters most.
     pub edge_agree_translation: f64,
+    /// Rotation bound of `edge_agree_translation`'s check, degrees.
     pub edge_agree_rotation_deg: f64,
     /// Standard deviations of a keyframe edge (a relative pose from the ICP), metres and
     /// degrees.
     pub sigma_translation: f64,
+    /// Rotation standard deviation of a keyframe edge, degrees.
     pub sigma_rotation_deg: f64,
     /// Standard deviations of the prior that keeps a refined frame's dense pose when the
     /// frame is refined again against the adjusted points after bundle adjustment.
     pub prior_sigma_translation: f64,
+    /// Rotation standard deviation of that prior, degrees.
     pub prior_sigma_rotation_deg: f64,
     /// Keyframe alignments read each keyframe's depth after the map's depth-edge filter
     /// (`map.depth_edge_*`); off: as the sensor gave it.
@@ -327,7 +350,9 @@ pub struct DenseConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DenseLevel {
+    /// Frame pixels are sampled every `step` pixels at this level.
     pub step: usize,
+    /// Pairs farther apart than this are dropped, metres.
     pub max_distance: f64,
 }
 
@@ -405,6 +430,7 @@ pub struct MapConfig {
     pub pixel_stride: u32,
     /// Depths outside `[min_depth, max_depth]` metres are not fused.
     pub min_depth: f64,
+    /// Upper end of the fused depth range, metres.
     pub max_depth: f64,
     /// After a correction, each new keyframe also re-fuses at most this many of the
     /// keyframes that moved most (by more than a voxel) since they were fused, so that
@@ -421,6 +447,7 @@ pub struct MapConfig {
     /// depth, exceeds `depth_edge_ratio` is not fused (0: every pixel). Planes, slanted or
     /// not, score 0.
     pub depth_edge_ratio: f32,
+    /// Reach of the depth-edge second difference, full-resolution pixels.
     pub depth_edge_reach: u32,
     /// Write the PLY as ASCII instead of binary little-endian.
     pub ply_ascii: bool,
@@ -457,14 +484,18 @@ pub struct MultiviewConfig {
     /// `min_baseline` metres away (and whose viewing direction is within
     /// `max_angle_deg`) are references, the widest baselines first.
     pub look_back: usize,
+    /// Smallest distance of a reference's camera centre, metres.
     pub min_baseline: f64,
+    /// Largest angle between a reference's viewing direction and the keyframe's, degrees.
     pub max_angle_deg: f64,
     /// Depth hypotheses, log-spaced over `predicted · e^(±range)`.
     pub steps: usize,
+    /// Half-width of the hypothesis range in log depth (`predicted · e^(±range)`).
     pub range: f64,
     /// Patch of `2 r + 1` x `2 r + 1` samples, `patch_step` full-resolution pixels apart
     /// (bilinear in the earlier keyframes' full-resolution grey images).
     pub patch_radius: usize,
+    /// Spacing of the patch samples, full-resolution pixels.
     pub patch_step: usize,
     /// A depth is measured when the best mean NCC is at least `min_ncc`, ...
     pub min_ncc: f32,
@@ -531,8 +562,11 @@ impl Default for LabelVoteConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RobustKernel {
+    /// Plain least squares.
     None,
+    /// Huber kernel: quadratic up to `robust_delta`, linear beyond.
     Huber,
+    /// Cauchy kernel with scale `robust_delta`.
     Cauchy,
 }
 
@@ -549,11 +583,14 @@ pub struct CorrectionConfig {
     /// metres (and viewing direction within `proximity_angle_deg`) are tried,
     /// nearest first, at most `proximity_pairs`.
     pub proximity_pairs: usize,
+    /// Largest camera-centre distance of a proximity pair, metres.
     pub proximity_radius: f64,
+    /// Largest viewing-direction angle of a proximity pair, degrees.
     pub proximity_angle_deg: f64,
     /// Earlier keyframes with the most similar mean descriptor (cosine) are
     /// tried, at most `similarity_pairs`, if the cosine is above `min_similarity`.
     pub similarity_pairs: usize,
+    /// Smallest mean-descriptor cosine of a similarity pair.
     pub min_similarity: f32,
     /// Keyframes closer in id than this are not paired (the odometry edge links
     /// neighbours already).
@@ -566,9 +603,11 @@ pub struct CorrectionConfig {
     pub lm_iterations: usize,
     /// Standard deviations of the edge errors (information = 1 / sigma²).
     pub sigma_translation: f64,
+    /// Rotation standard deviation of an edge error, degrees.
     pub sigma_rotation_deg: f64,
     /// Robust kernel on the whitened edge error, and its scale.
     pub robust_kernel: RobustKernel,
+    /// Scale of the robust kernel, on the whitened error.
     pub robust_delta: f64,
     /// Optimise while the run goes on when a loop constraint is found (otherwise once at
     /// the end). Every solve starts from the tracked poses, so online solves change the live

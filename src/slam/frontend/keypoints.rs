@@ -12,16 +12,21 @@ use image::GrayImage;
 /// Keypoints of one image with row-major `N x dim` unit descriptors.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct KeyFeatures {
+    /// Keypoint positions `[x, y]`, pixels.
     pub points: Vec<[f32; 2]>,
+    /// Row-major `N x dim` L2-normalised descriptors.
     pub descriptors: Vec<f32>,
+    /// Descriptor length (256 for ORB, its bits as `±1/16`).
     pub dim: usize,
 }
 
 impl KeyFeatures {
+    /// Number of keypoints.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether there are no keypoints.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }
@@ -68,6 +73,7 @@ pub trait KeypointSource: Send + Sync {
 /// low-texture images.
 #[derive(Debug, Clone)]
 pub struct OrbSource {
+    /// ORB settings of the first try.
     pub config: OrbConfig,
     /// FAST threshold of the second try when fewer than half of the wanted
     /// keypoints are found (0: no second try).
@@ -123,6 +129,7 @@ impl KeypointSource for OrbSource {
 /// FPFDCNN inference (Table 12 `Out`).
 #[derive(Debug)]
 pub struct FpfdcnnSource {
+    /// The loaded FPFDCNN detector.
     pub detector: FpfdcnnDetector,
 }
 

@@ -45,6 +45,7 @@ struct Candidate {
 pub struct PairMatch {
     /// `T_a⁻¹ T_b`.
     pub relative: Pose,
+    /// Number of PnP inliers.
     pub inliers: usize,
     /// Inlier keypoint pairs `(in a, in b)`.
     pub matches: Vec<(u32, u32)>,

@@ -68,6 +68,7 @@ fn hash_words(width: u32, height: u32, words: impl Iterator<Item = u64>) -> u64 
 /// Which of a frame's images repeat the previous frame's.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Repeats {
+    /// Whether the colour image repeats the previous frame's.
     pub colour: bool,
     /// `None` unless both frames have depth.
     pub depth: Option<bool>,
@@ -78,11 +79,14 @@ pub struct Repeats {
 pub struct RepeatCounts {
     /// Every image repeats the previous frame's (both, or the colour in a monocular run).
     pub both: usize,
+    /// Frames whose colour repeats but whose depth does not.
     pub colour_only: usize,
+    /// Frames whose depth repeats but whose colour does not.
     pub depth_only: usize,
 }
 
 impl RepeatCounts {
+    /// Counts one frame's repeats.
     pub fn add(&mut self, r: Repeats) {
         match (r.colour, r.depth) {
             (true, Some(true) | None) => self.both += 1,
@@ -92,6 +96,7 @@ impl RepeatCounts {
         }
     }
 
+    /// Frames that repeat any image.
     pub fn total(&self) -> usize {
         self.both + self.colour_only + self.depth_only
     }

@@ -35,6 +35,7 @@ use std::sync::Arc;
 pub enum FrameStatus {
     /// First keyframe (or restart after being lost).
     Initialised,
+    /// Tracked against the reference keyframe (and previous frame).
     Tracked,
     /// Lost, then found again against an earlier keyframe.
     Relocalised,
@@ -45,8 +46,11 @@ pub enum FrameStatus {
 /// The outcome of one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FrameRecord {
+    /// The frame's index in the sequence.
     pub index: usize,
+    /// The frame's timestamp, seconds.
     pub stamp: f64,
+    /// How the frame was tracked.
     pub status: FrameStatus,
     /// The keyframe this frame became, if any.
     pub keyframe: Option<usize>,
@@ -58,6 +62,7 @@ pub struct FrameRecord {
     pub odom_pose: Pose,
     /// PnP inliers and correspondences.
     pub inliers: usize,
+    /// Number of 2D-3D correspondences given to PnP.
     pub correspondences: usize,
     /// The PnP inliers against the reference keyframe (empty for keyframes and lost
     /// frames), for the frame's refinement after bundle adjustment.
@@ -96,10 +101,15 @@ pub struct FrameObservation {
 /// A keyframe just created by tracking, for the mapping stage.
 #[derive(Debug, Clone)]
 pub struct NewKeyframe {
+    /// The keyframe's id (its index in the map's keyframes).
     pub id: usize,
+    /// Index of the frame it was made from.
     pub frame_index: usize,
+    /// The frame's timestamp, seconds.
     pub stamp: f64,
+    /// Camera-to-world pose in the odometry frame.
     pub pose: Pose,
+    /// Ground-truth camera-to-world pose, when the sequence has one.
     pub gt_pose: Option<Pose>,
     /// Keypoints with 3D points from sensor depth (RGB-D), or without 3D
     /// points until mapping predicts the depth (monocular).
@@ -109,18 +119,24 @@ pub struct NewKeyframe {
 /// One frame for the tracker.
 #[derive(Debug, Clone)]
 pub struct TrackInput<'a> {
+    /// The frame's index in the sequence.
     pub index: usize,
+    /// The frame's timestamp, seconds.
     pub stamp: f64,
+    /// The frame's keypoints and descriptors.
     pub features: KeyFeatures,
     /// Sensor depth (RGB-D mode only).
     pub depth: Option<&'a DepthImage>,
+    /// Ground-truth camera-to-world pose, when the sequence has one.
     pub gt_pose: Option<Pose>,
 }
 
 /// Result of [`Tracker::track`].
 #[derive(Debug, Clone)]
 pub struct TrackOutput {
+    /// The frame's outcome.
     pub record: FrameRecord,
+    /// The keyframe the frame became, if any, for the mapping stage.
     pub keyframe: Option<NewKeyframe>,
     /// What happened, for the log (lost, relocalised, restarted).
     pub events: Vec<String>,
@@ -192,10 +208,12 @@ pub struct Tracker {
     step_alignment: DenseConfig,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
+    /// Tracking trouble so far.
     pub counters: TrackingCounters,
 }
 
 impl Tracker {
+    /// A tracker with no keyframe yet; `monocular`: no sensor depth (depth from mapping).
     pub fn new(cfg: SlamConfig, camera: Camera, monocular: bool) -> Self {
         let step_alignment = DenseConfig {
             levels: cfg.dense.levels.iter().take(1).cloned().collect(),

@@ -25,7 +25,9 @@ use std::time::Instant;
 
 /// A keyframe on its way to mapping, with its full-resolution images.
 pub struct MapperInput {
+    /// The keyframe from tracking.
     pub keyframe: NewKeyframe,
+    /// Full-resolution colour image.
     pub rgb: RgbImage,
     /// Sensor depth (RGB-D).
     pub depth: Option<DepthImage>,
@@ -43,13 +45,18 @@ pub struct LocalMapper {
     semantics: Box<dyn SemanticSource>,
     map: SharedMap,
     log: Log,
+    /// The voxel grid the keyframes are fused into.
     pub semantic_map: SemanticMap,
     fused_epoch: u64,
     /// The pose and depth scale each keyframe was fused with.
     fused: Vec<(Pose, f64)>,
+    /// Semantic-source failures: frame index and message (those keyframes got void labels).
     pub failures: Vec<(usize, String)>,
+    /// Time spent predicting labels (and depth) with the semantic source.
     pub semantics_time: StageTime,
+    /// Time spent on multi-view depth (monocular mode).
     pub multiview_time: StageTime,
+    /// Multi-view depth counts summed over the keyframes.
     pub multiview: SweepSummary,
     /// Each measured keyframe's median multi-view / predicted depth ratio (monocular mode),
     /// fused over the run by [`super::scale_anchor::fuse_ratios`].
@@ -57,6 +64,7 @@ pub struct LocalMapper {
     /// Full-resolution grey images of the last `multiview.look_back` keyframes (monocular
     /// mode) with their index in the map: the references of multi-view depth.
     recent: VecDeque<(usize, Arc<GrayView>)>,
+    /// Time spent inserting keyframes into the map and fusing (and re-fusing) them.
     pub fusion_time: StageTime,
 }
 
@@ -64,6 +72,7 @@ pub struct LocalMapper {
 const MIN_RATIO_PIXELS: usize = 100;
 
 impl LocalMapper {
+    /// A mapper with an empty voxel grid; `monocular`: depth comes from the semantic source.
     pub fn new(
         cfg: SlamConfig,
         camera: Camera,

@@ -26,12 +26,16 @@ use serde::{Deserialize, Serialize};
 /// A grey image in `f32` (BT.601 luma, 0-255).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GrayView {
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
+    /// Luma row-major, `width * height` values.
     pub data: Vec<f32>,
 }
 
 impl GrayView {
+    /// The BT.601 luma of a colour image.
     pub fn from_rgb(img: &RgbImage) -> Self {
         let data = img
             .pixels()
@@ -63,7 +67,9 @@ impl GrayView {
 /// An earlier keyframe the sweep compares against: its grey view and its pose
 /// (camera to world).
 pub struct SweepReference<'a> {
+    /// The reference keyframe's grey image.
     pub image: &'a GrayView,
+    /// The reference keyframe's pose, camera to world.
     pub pose: Pose,
 }
 

@@ -42,6 +42,7 @@ pub const MAX_TILT_DEG: f64 = 30.0;
 /// Keyframes with a multi-view ratio fewer than this, or a relative standard error above
 /// [`MAX_SCALE_ERROR`]: the map-level scale is poorly determined.
 pub const MIN_SCALE_KEYFRAMES: usize = 5;
+/// Largest relative standard error of the fused multi-view scale for it to be trusted.
 pub const MAX_SCALE_ERROR: f64 = 0.05;
 
 /// The floor plane of a map and the camera height it implies.
@@ -67,16 +68,26 @@ pub struct FloorFit {
 /// Why the floor could not anchor the scale.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FloorError {
+    /// Fewer than [`MIN_FLOOR_POINTS`] map points are labelled floor (the count).
     #[error(
         "the floor is not seen: {0} map points are labelled floor (at least {MIN_FLOOR_POINTS} needed)"
     )]
     TooFewPoints(usize),
+    /// No keyframes to measure the camera height from.
     #[error("no keyframes to measure the camera height from")]
     NoCameras,
+    /// The floor points lie on no well-supported level below the cameras, or that level tilts
+    /// more than [`MAX_TILT_DEG`] from up.
     #[error(
         "the floor points do not lie on one level below the cameras ({inliers} of {points} within reach at most)"
     )]
-    NotPlanar { inliers: usize, points: usize },
+    NotPlanar {
+        /// The most floor points within reach of one level (or of the fitted plane).
+        inliers: usize,
+        /// Points labelled floor.
+        points: usize,
+    },
+    /// The cameras are not above the floor plane (their median height above it, map units).
     #[error("the cameras are not above the floor plane (median height {0:.3} map units)")]
     CamerasNotAbove(f64),
 }
@@ -258,6 +269,7 @@ pub struct MultiviewScale {
     pub relative_error: f64,
     /// 10th and 90th percentiles of the keyframes' ratios.
     pub p10: f64,
+    /// 90th percentile of the keyframes' ratios.
     pub p90: f64,
     /// Too few keyframes or too large an error for the scale to be trusted.
     pub poorly_determined: bool,
@@ -291,7 +303,7 @@ pub fn fuse_ratios(ratios: &[f64]) -> Option<MultiviewScale> {
         relative_error,
         p10: at(0.1),
         p90: at(0.9),
-        poorly_determined: n < MIN_SCALE_KEYFRAMES || !(relative_error <= MAX_SCALE_ERROR),
+        poorly_determined: n < MIN_SCALE_KEYFRAMES || relative_error > MAX_SCALE_ERROR,
     })
 }
 

@@ -16,8 +16,11 @@ use rustc_hash::{FxHashMap, FxHashSet};
 /// The accumulated observations of one voxel.
 #[derive(Debug, Clone)]
 pub struct Voxel {
+    /// Sum of the observed world positions, metres.
     pub sum: [f64; 3],
+    /// Sum of the observed colours.
     pub rgb: [u32; 3],
+    /// Number of observations (void ones included).
     pub count: u32,
     /// Votes per class (0-39).
     pub votes: [u16; classes::NUM_CLASSES],
@@ -67,20 +70,26 @@ impl Voxel {
 /// A fused map point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapPoint {
+    /// Mean observed world position, metres.
     pub position: Point3<f32>,
+    /// Mean observed colour.
     pub rgb: [u8; 3],
+    /// Voted class (255 = void).
     pub label: u8,
 }
 
 /// The voxel grid.
 #[derive(Debug, Clone)]
 pub struct SemanticMap {
+    /// Voxel side, metres.
     pub voxel_size: f64,
+    /// Occupied voxels by integer index (`floor(position / voxel_size)`).
     pub voxels: FxHashMap<[i32; 3], Voxel>,
     rays: Option<RayTable>,
 }
 
 impl SemanticMap {
+    /// An empty grid of voxels `voxel_size` metres on a side.
     pub fn new(voxel_size: f64) -> Self {
         SemanticMap {
             voxel_size,
@@ -94,10 +103,12 @@ impl SemanticMap {
         self.voxels.len()
     }
 
+    /// Whether no voxel is occupied.
     pub fn is_empty(&self) -> bool {
         self.voxels.is_empty()
     }
 
+    /// Removes every voxel.
     pub fn clear(&mut self) {
         self.voxels.clear();
     }

@@ -24,8 +24,11 @@ use std::path::{Path, PathBuf};
 /// for sources that read per-frame files (ground truth).
 #[derive(Debug, Clone, Copy)]
 pub struct SemanticInput<'a> {
+    /// Index of the frame in the sequence.
     pub index: usize,
+    /// Time stamp of the frame, seconds.
     pub stamp: f64,
+    /// The frame's colour image.
     pub rgb: &'a RgbImage,
 }
 
@@ -62,6 +65,7 @@ impl SemanticSource for NoLabels {
 /// image, both at the image's resolution, from one forward pass.
 #[derive(Debug)]
 pub struct SdfcnnSource {
+    /// The loaded network.
     pub predictor: SdfcnnPredictor,
     /// The camera's horizontal focal length in pixels: depth is scaled from the network's
     /// canonical camera to it (`crate::sdfcnn::focal`). `None`: depth as predicted.
@@ -132,7 +136,9 @@ impl SemanticSource for SdfcnnSource {
 /// A `timestamp filename` list of a sequence folder, searchable by stamp.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StampedFiles {
+    /// Path of the list file.
     pub list: PathBuf,
+    /// `(stamp in seconds, file path)` entries sorted by stamp.
     pub entries: Vec<(f64, PathBuf)>,
 }
 
@@ -178,9 +184,13 @@ impl StampedFiles {
 /// SDFCNN" for testing the monocular path.
 #[derive(Debug, Clone)]
 pub struct GroundTruthSource {
+    /// The sequence's `labels.txt` list.
     pub labels: StampedFiles,
+    /// The sequence's `depth_gt.txt` list, when it has exact depth.
     pub depth: Option<StampedFiles>,
+    /// Depth PNG value per metre (`metres = value / depth_scale`).
     pub depth_scale: f64,
+    /// Largest stamp difference accepted when looking up a file, seconds.
     pub max_diff: f64,
 }
 

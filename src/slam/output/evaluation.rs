@@ -27,9 +27,11 @@ const T_MAX_DIFF: f64 = 0.02;
 pub struct TrajectoryEvaluation {
     /// ATE after the mode's alignment (SE(3) with sensor depth, Sim(3) with predicted).
     pub ate: Option<AteReport>,
+    /// ATE without any alignment (poses compared as they are).
     pub ate_unaligned: Option<AteReport>,
     /// Why `ate` is missing although ground truth is there.
     pub ate_note: Option<String>,
+    /// Per-frame RPE (delta of one frame), under the mode's alignment when `ate` has one.
     pub rpe: Option<RpeReport>,
     /// The alignment to draw: the mode's, or none when it failed.
     pub drawn: Option<(Ape, Alignment)>,

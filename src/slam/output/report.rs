@@ -16,9 +16,12 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
+/// Absolute trajectory error (ATE) of the camera positions against ground truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AteReport {
+    /// How the estimate was aligned to the ground truth before measuring.
     pub alignment: Alignment,
+    /// Statistics of the position errors, metres.
     pub stats: Stats,
     /// Scale of the Sim(3) alignment (1 for SE(3) and none).
     pub scale: f64,
@@ -27,15 +30,20 @@ pub struct AteReport {
 /// Relative pose error between consecutive frames.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RpeReport {
+    /// Frame gap of the relative poses compared (1: consecutive frames).
     pub delta_frames: usize,
+    /// Statistics of the relative translation errors, metres.
     pub translation: Stats,
+    /// Statistics of the relative rotation errors, degrees.
     pub rotation_deg: Stats,
 }
 
 /// Accuracy of one class of the map labels.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ClassAccuracy {
+    /// Class label.
     pub label: u8,
+    /// Class name.
     pub name: String,
     /// Map points whose ground-truth label is this class.
     pub points: usize,
@@ -54,7 +62,9 @@ pub struct MapAccuracy {
     pub evaluated_points: usize,
     /// Share within `tolerance` of the true surface.
     pub position_accuracy: f64,
+    /// Median distance of the evaluated points to the true surface, metres.
     pub median_error: f64,
+    /// Mean distance of the evaluated points to the true surface, metres.
     pub mean_error: f64,
     /// Per-class accuracy (ground-truth labels only).
     pub classes: Vec<ClassAccuracy>,
@@ -67,34 +77,50 @@ pub struct MapAccuracy {
 /// A row of the label histogram.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LabelCount {
+    /// Class label (void included).
     pub label: u8,
+    /// Class name (`"void"` for void).
     pub name: String,
+    /// Map points with this label.
     pub points: usize,
 }
 
 /// A stage's timing.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StageReport {
+    /// Stage name.
     pub stage: String,
+    /// Time spent in the stage, seconds.
     pub seconds: f64,
+    /// Times the stage ran.
     pub calls: usize,
+    /// Calls per second of stage time.
     pub per_second: f64,
 }
 
 /// Tracking trouble.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrackingReport {
+    /// Frames whose guided tracking failed.
     pub failures: usize,
+    /// Of those, frames relocalised against a keyframe.
     pub relocalised: usize,
+    /// Of those, frames that kept the constant-velocity pose.
     pub lost: usize,
+    /// Frames where a keyframe was started after a lost streak.
     pub reinitialised: usize,
+    /// Indices of the frames counted in `failures`.
     pub failure_frames: Vec<usize>,
+    /// Indices of the frames counted in `relocalised`.
     pub relocalised_frames: Vec<usize>,
+    /// Indices of the frames counted in `lost`.
     pub lost_frames: Vec<usize>,
+    /// Indices of the frames counted in `reinitialised`.
     pub reinitialised_frames: Vec<usize>,
     /// RGB-D: frames whose pose the dense refinement replaced, and frames where it was not kept.
     #[serde(default)]
     pub dense_kept: usize,
+    /// RGB-D: frames where the dense refinement's pose was not kept.
     #[serde(default)]
     pub dense_rejected: usize,
     /// `tracking.colour_instant`: frames whose pose was moved from their depth image's
@@ -106,40 +132,66 @@ pub struct TrackingReport {
 /// Everything `report.json` holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Report {
+    /// The sequence folder.
     pub sequence: String,
+    /// `"rgbd"` (sensor depth) or `"monocular"` (predicted depth).
     pub mode: String,
+    /// Name of the keypoint source (`"orb"`, `"fpfdcnn"`).
     pub features: String,
+    /// Name of the semantic source.
     pub labels: String,
+    /// Whether tracking, mapping and correction ran in their own threads.
     pub threads: bool,
     /// Threads that loaded frames and detected keypoints ahead of tracking (0: tracking
     /// did it); the `features` stage time is summed over them.
     #[serde(default)]
     pub feature_workers: usize,
+    /// Frames the run was asked to process.
     pub frames_requested: usize,
+    /// Frames tracked.
     pub frames_processed: usize,
+    /// Frames that could not be read: index and reason.
     pub frames_skipped: Vec<(usize, String)>,
     /// Frames whose colour and/or depth image repeats the previous frame's.
     #[serde(default)]
     pub repeated_frames: RepeatCounts,
+    /// Whether the run was stopped before its last frame.
     pub interrupted: bool,
+    /// Keyframes in the map.
     pub keyframes: usize,
+    /// Odometry constraints (each keyframe to its predecessor).
     pub odometry_constraints: usize,
+    /// Constraints other than odometry (random, proximity and similarity pairs).
     pub loop_constraints: usize,
+    /// Unified world points of local correction.
     pub landmarks: usize,
+    /// Points of the semantic map.
     pub map_points: usize,
+    /// Tracking failures and recoveries.
     pub tracking: TrackingReport,
+    /// Wall-clock duration of the run, seconds.
     pub wall_seconds: f64,
+    /// Frames per second over the whole run.
     pub fps: f64,
+    /// Time per stage.
     pub timing: Vec<StageReport>,
+    /// ATE after the mode's alignment (SE(3) with sensor depth, Sim(3) with predicted).
     pub ate: Option<AteReport>,
+    /// ATE without any alignment (poses compared as they are).
     pub ate_unaligned: Option<AteReport>,
     /// Why `ate` is missing although there is ground truth.
     pub ate_note: Option<String>,
+    /// Per-frame RPE, under the mode's alignment when `ate` has one.
     pub rpe: Option<RpeReport>,
+    /// Map points per label, void last.
     pub label_histogram: Vec<LabelCount>,
+    /// Table 11's accuracy of the map (`None` when ground truth does not allow it).
     pub map_accuracy: Option<MapAccuracy>,
+    /// Keyframes whose semantic source failed (void labels used): frame index and error.
     pub semantic_failures: Vec<(usize, String)>,
+    /// Counts of the correction stage.
     pub correction: crate::slam::backend::correction::CorrectionStats,
+    /// What local correction did.
     pub local_correction: crate::slam::backend::correction::LocalSummary,
     /// The final bundle adjustment (`None`: off).
     #[serde(default)]
@@ -160,6 +212,7 @@ pub struct Report {
     /// The floor's camera height, the monocular map-level scale and any rescaling.
     #[serde(default)]
     pub scale: crate::slam::system::scale::ScaleReport,
+    /// Files written by the run.
     pub outputs: Vec<PathBuf>,
 }
 

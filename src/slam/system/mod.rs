@@ -63,9 +63,13 @@ pub fn stderr_log() -> Log {
 /// Progress after a frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Progress {
+    /// Frames processed so far.
     pub done: usize,
+    /// Frames the run will process.
     pub total: usize,
+    /// Keyframes created so far.
     pub keyframes: usize,
+    /// Frames lost so far (tracking kept the constant-velocity pose).
     pub lost: usize,
 }
 
@@ -76,6 +80,7 @@ pub type FrameCallback = Box<dyn FnMut(&FrameRecord, &Progress)>;
 pub struct Control {
     /// Set it (Ctrl-C) to stop after the current frame; what was tracked is kept.
     pub stop: Arc<AtomicBool>,
+    /// Where warnings and events go.
     pub log: Log,
     /// Called on the calling thread after every frame.
     pub on_frame: Option<FrameCallback>,
@@ -93,11 +98,17 @@ impl Default for Control {
 
 /// Everything a run needs.
 pub struct Slam {
+    /// The TUM-layout sequence to run on.
     pub sequence: TumSequence,
+    /// The sequence's camera.
     pub camera: Camera,
+    /// The system's settings.
     pub config: SlamConfig,
+    /// Where depth comes from (sensor or predicted).
     pub depth: DepthMode,
+    /// The keypoint detector and descriptor (ORB or FPFDCNN).
     pub keypoints: Box<dyn KeypointSource>,
+    /// Where keyframes' labels (and monocular depth) come from.
     pub semantics: Box<dyn SemanticSource>,
     /// Process at most this many frames.
     pub max_frames: Option<usize>,
@@ -105,11 +116,15 @@ pub struct Slam {
 
 /// What a run produced.
 pub struct SlamOutput {
+    /// One record per processed frame, in sequence order.
     pub frames: Vec<FrameRecord>,
+    /// The final map: keyframes with corrected poses and their constraints.
     pub map: Map,
+    /// The fused 3D semantic map.
     pub semantic_map: SemanticMap,
     /// Unified world points of local correction.
     pub landmarks: Vec<Point3<f64>>,
+    /// What local correction did.
     pub local: LocalSummary,
     /// The final bundle adjustment (`None`: off).
     pub adjustment: Option<BaSummary>,
@@ -118,15 +133,18 @@ pub struct SlamOutput {
     /// Each keyframe's pose right after its correction step (the live estimate) and every
     /// keyframe's pose at the end of the run, before the final optimisation.
     pub live_poses: Vec<Pose>,
+    /// Every keyframe's pose at the end of the run, before the final optimisation.
     pub online_poses: Vec<Pose>,
     /// Dense keyframe-to-keyframe edges (RGB-D, `dense.keyframe_edges` > 0).
     pub keyframe_alignment: Option<KeyframeAlignmentSummary>,
     /// Multi-view depth of monocular keyframes, summed over keyframes.
     pub multiview: SweepSummary,
+    /// Frames tracking had trouble with (relocalised, lost...).
     pub tracking: TrackingCounters,
     /// `tracking.colour_instant`: frames whose pose was moved from their depth image's instant
     /// to their colour image's.
     pub colour_instant: usize,
+    /// Counts of the correction stage.
     pub correction: CorrectionStats,
     /// Frames that could not be read, with the reason.
     pub skipped: Vec<(usize, String)>,
@@ -134,16 +152,23 @@ pub struct SlamOutput {
     pub repeated_frames: RepeatCounts,
     /// Keyframes whose semantic source failed (void labels used).
     pub semantic_failures: Vec<(usize, String)>,
+    /// Time spent in each stage.
     pub timings: Timings,
+    /// Wall-clock duration of the run, seconds.
     pub wall_seconds: f64,
+    /// Whether the run was stopped before its last frame.
     pub interrupted: bool,
     /// Frames the run was asked to process.
     pub total_frames: usize,
+    /// Whether tracking, mapping and correction ran in their own threads.
     pub threads: bool,
     /// Threads that prepared frames ahead of tracking (0: tracking did it).
     pub feature_workers: usize,
+    /// Where depth came from (sensor or predicted).
     pub depth: DepthMode,
+    /// Name of the keypoint source, for reports.
     pub keypoint_source: &'static str,
+    /// Name of the semantic source, for reports.
     pub semantic_source: &'static str,
     /// The floor's camera height and the monocular map-level scale, and any rescaling.
     pub scale: scale::ScaleReport,

@@ -6,15 +6,19 @@ use std::time::{Duration, Instant};
 /// Time spent in a stage.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTime {
+    /// Total time spent, seconds.
     pub seconds: f64,
+    /// Number of timed calls.
     pub calls: usize,
 }
 
 impl StageTime {
+    /// Adds one call that began at `since` and ends now.
     pub fn add(&mut self, since: Instant) {
         self.add_duration(since.elapsed());
     }
 
+    /// Adds one call that took `d`.
     pub fn add_duration(&mut self, d: Duration) {
         self.seconds += d.as_secs_f64();
         self.calls += 1;

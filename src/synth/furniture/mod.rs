@@ -27,12 +27,16 @@ pub use storage::*;
 /// A local frame on the floor: origin and yaw `(c, s)` about `z`.
 #[derive(Debug, Clone, Copy)]
 pub struct Place {
+    /// Origin, metres.
     pub o: V3,
+    /// Cosine of the yaw.
     pub c: f32,
+    /// Sine of the yaw.
     pub s: f32,
 }
 
 impl Place {
+    /// A frame at `o` with yaw cosine `c` and sine `s`.
     pub fn new(o: V3, c: f32, s: f32) -> Self {
         Place { o, c, s }
     }
@@ -68,6 +72,7 @@ impl Place {
 /// Parts of one item, in its local frame.
 #[derive(Debug, Clone, Default)]
 pub struct Group {
+    /// The item's parts.
     pub solids: Vec<Solid>,
     /// Points a camera may look at.
     pub interest: Vec<V3>,
@@ -146,7 +151,9 @@ impl Group {
 
 /// Builds a room's contents with one random stream.
 pub struct Builder<'a> {
+    /// The random stream every choice draws from.
     pub rng: &'a mut ChaCha8Rng,
+    /// The room being furnished.
     pub room: Room,
     /// How many optional items and props, in `[0, 1]`.
     pub clutter: f32,
@@ -164,8 +171,11 @@ pub struct Built {
     pub shell: Vec<Solid>,
     /// Everything else.
     pub solids: Vec<Solid>,
+    /// World points a camera may look at.
     pub interest: Vec<V3>,
+    /// World points with much to see: preferred camera targets.
     pub focus: Vec<V3>,
+    /// World positions of lamp lights.
     pub lamps: Vec<V3>,
 }
 
@@ -177,6 +187,7 @@ fn overlap(a: &(V3, V3), b: &(V3, V3), m: f32) -> bool {
 }
 
 impl<'a> Builder<'a> {
+    /// A builder for an empty room; the L-shaped room's notch is already occupied.
     pub fn new(rng: &'a mut ChaCha8Rng, room: Room, clutter: f32) -> Self {
         let occupied = room
             .notch
@@ -205,10 +216,12 @@ impl<'a> Builder<'a> {
         }
     }
 
+    /// True with probability `p` (clamped to [0, 1]).
     pub fn chance(&mut self, p: f32) -> bool {
         self.rng.random_bool(p.clamp(0.0, 1.0) as f64)
     }
 
+    /// A uniformly chosen colour of `palette`.
     pub fn pick(&mut self, palette: &[Rgb]) -> Rgb {
         palette[self.rng.random_range(0..palette.len())]
     }

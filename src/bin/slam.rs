@@ -107,7 +107,7 @@ struct Cli {
     /// the frame-to-frame ORB + PnP baseline).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Output folder [default: runs/slam/<sequence name>].
+    /// Output folder [default: runs/slam/NAME, NAME the sequence's name].
     #[arg(long)]
     out: Option<PathBuf>,
     /// Burn backend for the networks.

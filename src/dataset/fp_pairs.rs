@@ -276,7 +276,7 @@ pub fn fp_pair(camera: &Camera, a: &Frame, b: &Frame, cfg: &FpConfig) -> Result<
 const PAIR_BLOCK: usize = 32;
 
 /// All FP pairs of a sequence, in [`pair_indices`] order, computed in parallel: the pairs
-/// are cut into blocks of [`PAIR_BLOCK`] consecutive first frames, and each block decodes
+/// are cut into blocks of `PAIR_BLOCK` consecutive first frames, and each block decodes
 /// the frames it needs once and keeps them only while it runs.
 pub fn fp_pairs(seq: &TumSequence, camera: &Camera, cfg: &FpConfig) -> Vec<Result<FpPair>> {
     pairs_in_blocks(seq, camera, cfg, PAIR_BLOCK)

@@ -1,7 +1,7 @@
 //! FPFDCNN training data, built as the paper builds its FP dataset (section IV-B,
 //! V-B): frame pairs `(i, i + k)` of TUM-layout RGB-D sequences with ground truth,
 //! Harris corners as detector targets, and their ground-truth matches (eqs 5-7,
-//! [`crate::dataset::fp_pairs`]) for the descriptors.
+//! [`crate::dataset::fp_pairs`](mod@crate::dataset::fp_pairs)) for the descriptors.
 //!
 //! A training image of `height x width` pixels is either a window cropped from the
 //! full-resolution frame ([`Sampling::Crop`], the default: keypoints are learnt at the

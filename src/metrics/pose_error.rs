@@ -1,5 +1,5 @@
 //! The paper's pose errors errT (%) and errR (deg/m), eqs 11-14, after the
-//! KITTI odometry metric the paper cites ([37]; its Table 1 uses the same units).
+//! KITTI odometry metric the paper cites (\[37\]; its Table 1 uses the same units).
 //!
 //! Our reading, for a segment from frame `i` to frame `j` with ground-truth
 //! relative motion `T = T_i⁻¹ T_j` (rotation `R`) and estimated relative motion

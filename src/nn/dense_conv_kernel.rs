@@ -14,7 +14,7 @@
 //! * input gradient: `dcols = Wᵀ · dy`, folded back onto the input (col2im), channel by
 //!   channel in parallel.
 //!
-//! The columns of a band hold at most [`BAND_VALUES`] values (or one output row's, if more),
+//! The columns of a band hold at most `BAND_VALUES` values (or one output row's, if more),
 //! so memory stays bounded whatever the image: FPFDCNN's L3 alone would unfold into 44 MB a
 //! batch of four at 240x320, 177 MB at 480x640. Padding is zeros; the arithmetic is `f32`
 //! whatever the float type.
@@ -117,7 +117,7 @@ impl ConvKernel for Dense {
 }
 
 /// Whether [`dense_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`) on
-/// `c` input channels with `options`: groups 1, and [`kernel_fits`].
+/// `c` input channels with `options`: groups 1, and `kernel_fits`.
 pub fn supports(
     c: usize,
     [h, w]: [usize; 2],

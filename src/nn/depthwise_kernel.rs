@@ -186,7 +186,7 @@ impl ConvKernel for Depthwise {
 
 /// Whether [`depthwise_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`)
 /// on `c` input channels with `options`: depthwise (`groups == C == OC`), and
-/// [`kernel_fits`].
+/// `kernel_fits`.
 pub fn supports(
     c: usize,
     [h, w]: [usize; 2],

@@ -112,7 +112,7 @@ impl RunDir {
     /// checkpoint, `metrics.csv`, `config.toml`...): otherwise the error says what is there
     /// and the ways out (`--resume`, another `--out`, `--overwrite`). `resume` needs a
     /// checkpoint, and a config that means the same as the saved one except for the settings
-    /// that change no computed number ([`FREE_SETTINGS`]) and a learning-rate schedule that
+    /// that change no computed number (`FREE_SETTINGS`) and a learning-rate schedule that
     /// changes no epoch already trained ([`resume_difference`]).
     ///
     /// A trainer that saves its config normalised (every default written out) gives
@@ -496,7 +496,7 @@ const FREE_SETTINGS: [&str; 4] = ["epochs", "keep_checkpoints", "out", "backend"
 
 /// The differences in meaning between two training configs, as `key: saved -> given` joined
 /// by "; " (at most six named), or `None` when they agree: keys compared as parsed TOML
-/// (order, spacing and comments do not matter), [`FREE_SETTINGS`] ignored, and strings
+/// (order, spacing and comments do not matter), `FREE_SETTINGS` ignored, and strings
 /// naming an existing file or folder compared as canonical paths (`runs/x` and
 /// `/home/me/runs/x` agree).
 pub fn config_difference(saved: &str, given: &str) -> Option<String> {

@@ -4,7 +4,7 @@
 //! nalgebra's `cholesky` works column by column on scalars. The pose graph is optimised
 //! again at every closed loop, on the thread beside tracking, each time with up to 30
 //! factorisations of 6 variables per keyframe: over 500 real frames (210 keyframes) that was
-//! 67 s of a 113 s run. Here the factorisation is right-looking in panels of [`BLOCK`]
+//! 67 s of a 113 s run. Here the factorisation is right-looking in panels of `BLOCK`
 //! columns: each panel is factored with small loops, and the trailing update
 //! `A22 −= L21·L21ᵀ` (its lower triangle), nearly all of the work, is a few matrix products
 //! through the `gemm` crate (AVX-512 / AVX2 kernels chosen at run time) on the calling thread.

@@ -113,7 +113,7 @@ pub fn check_camera_height(h: f64) -> Result<f64, String> {
 ///    turn, that direction is not determined and the images' mean up direction, made
 ///    perpendicular to their mean `x`, stands in.
 /// 2. **The floor level.** The heights along up of the floor-labelled points below the
-///    cameras are counted in bands (a [`INLIER_DISTANCE`] share of the scene's size either
+///    cameras are counted in bands (a `INLIER_DISTANCE` share of the scene's size either
 ///    side); the floor is the lowest peak of those counts holding a third as many points as
 ///    the fullest and a tenth of all floor points: mislabelled table tops and seats lie
 ///    higher, and a peak (not the lowest point) stays put when monocular depth smears it.

@@ -21,7 +21,11 @@
 //!   detect` with `DetectorConfig::default()`: the FP map and descriptors averaged over four
 //!   cell-grid placements, so four network passes, smoothing, NMS, top 500); no reference;
 //! * `fpfdcnn-train`: one SGD step at batch 4, 240×320 with a stand-in loss (mean of the
-//!   probability map + mean of the descriptors: the FPFDCNN loss is written elsewhere).
+//!   probability map + mean of the descriptors: the FPFDCNN loss is written elsewhere);
+//! * `slam`: the whole RGB-D SLAM with the defaults (bundled FPFDCNN keypoints and SDFCNN labels
+//!   on the backend, three threads) over the 10 real 640×480 TUM fr1_rpy frames of
+//!   `datasets/fixtures/tum_fr1_rpy_head10`, timed by the run itself (weights loaded outside
+//!   the time); frames/s = 10 / the time. Needs the bundled weights (`weights/`).
 //!
 //! Peak memory is the process's VmHWM from /proc/self/status, reset before each case by
 //! writing 5 to /proc/self/clear_refs (so it includes the memory already held then, shown as
@@ -85,10 +89,11 @@ enum Case {
     SdfcnnInferBurn,
     FpfdcnnTrain,
     SdfcnnTrain,
+    Slam,
 }
 
 impl Case {
-    const ALL: [Case; 7] = [
+    const ALL: [Case; 8] = [
         Case::FpfdcnnInfer,
         Case::FpfdcnnInferBurn,
         Case::FpfdcnnDetect,
@@ -96,6 +101,7 @@ impl Case {
         Case::SdfcnnInferBurn,
         Case::FpfdcnnTrain,
         Case::SdfcnnTrain,
+        Case::Slam,
     ];
 
     fn label(self) -> &'static str {
@@ -107,6 +113,7 @@ impl Case {
             Case::SdfcnnInferBurn => "SDFCNN inference as above, Burn's kernels",
             Case::FpfdcnnTrain => "FPFDCNN train step, batch 4, 240x320 (stand-in loss)",
             Case::SdfcnnTrain => "SDFCNN train step, batch 4, 240x320 (eq. 21)",
+            Case::Slam => "RGB-D SLAM, 10 real TUM frames, FPFDCNN + SDFCNN labels",
         }
     }
 
@@ -114,7 +121,7 @@ impl Case {
     fn torch_name(self) -> Option<&'static str> {
         match self {
             Case::FpfdcnnInfer | Case::FpfdcnnInferBurn => Some("fpfdcnn-infer"),
-            Case::FpfdcnnDetect => None,
+            Case::FpfdcnnDetect | Case::Slam => None,
             Case::SdfcnnInfer | Case::SdfcnnInferBurn => Some("sdfcnn-infer"),
             Case::FpfdcnnTrain => Some("fpfdcnn-train"),
             Case::SdfcnnTrain => Some("sdfcnn-train"),
@@ -343,6 +350,54 @@ fn sync(t: Tensor<4>) -> f32 {
     t.sum().into_scalar::<f32>()
 }
 
+/// The `slam` case: one whole run per repetition, timed by the run (`wall_seconds`).
+fn run_slam(backend: BackendKind, runs: usize, warmup: usize) -> Result<Measured> {
+    use sdf_slam::bundled::{BUNDLED_FPFDCNN, BUNDLED_SDFCNN, bundled_weights, locate};
+    use sdf_slam::camera::Camera;
+    use sdf_slam::dataset::TumSequence;
+    use sdf_slam::fpfdcnn::FpfdcnnDetector;
+    use sdf_slam::slam::{Control, DepthMode, FpfdcnnSource, SdfcnnSource, Slam, SlamConfig};
+    const FIXTURE: &str = "datasets/fixtures/tum_fr1_rpy_head10";
+    let path = locate(FIXTURE).with_context(|| format!("the fixture {FIXTURE} is not here"))?;
+    let weights = |name: &str| {
+        bundled_weights(name).with_context(|| format!("the slam case needs the bundled {name}"))
+    };
+    let (fp, sd) = (weights(BUNDLED_FPFDCNN)?, weights(BUNDLED_SDFCNN)?);
+    let sequence = TumSequence::open(&path)?;
+    let camera = Camera::for_sequence(None, &path)?;
+    let config = SlamConfig::default();
+    let quiet = || Control {
+        log: std::sync::Arc::new(|_: &str| {}),
+        ..Control::default()
+    };
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    let base_mb = status_mb("VmRSS:");
+    let mut ms = Vec::with_capacity(runs);
+    for k in 0..warmup + runs.max(1) {
+        let detector = FpfdcnnDetector::load(&fp, backend, config.features.detector())?;
+        let slam = Slam {
+            sequence: sequence.clone(),
+            camera: camera.clone(),
+            config: config.clone(),
+            depth: DepthMode::Sensor,
+            keypoints: Box::new(FpfdcnnSource { detector }),
+            semantics: Box::new(SdfcnnSource::load(&sd, backend)?.with_camera(&camera)),
+            max_frames: None,
+        };
+        let out = slam.run(quiet())?;
+        anyhow::ensure!(out.frames.len() == sequence.len(), "frames lost");
+        if k >= warmup {
+            ms.push(out.wall_seconds * 1e3);
+        }
+    }
+    Ok(Measured {
+        min_ms: ms.iter().copied().fold(f64::INFINITY, f64::min),
+        median_ms: median(ms),
+        peak_mb: status_mb("VmHWM:"),
+        base_mb,
+    })
+}
+
 fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Result<Measured> {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let sgd = || {
@@ -351,6 +406,7 @@ fn run_case(case: Case, backend: BackendKind, runs: usize, warmup: usize) -> Res
             .init()
     };
     match case {
+        Case::Slam => run_slam(backend, runs, warmup),
         Case::SdfcnnInfer if !backend.is_gpu() => {
             let d = backend.device()?;
             let model = SdfcnnConfig::new().init(&d)?;

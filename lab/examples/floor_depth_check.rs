@@ -68,7 +68,9 @@ fn main() -> Result<()> {
         let n = v.len();
         let ratio = median(v.iter().map(|r| r.0).collect());
         let sensor = median(v.iter().map(|r| r.1).collect());
-        println!("{name:<18} pixels {n:>9}  sensor/predicted {ratio:.3}  sensor depth {sensor:.2} m");
+        println!(
+            "{name:<18} pixels {n:>9}  sensor/predicted {ratio:.3}  sensor depth {sensor:.2} m"
+        );
     }
     Ok(())
 }

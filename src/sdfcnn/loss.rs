@@ -14,13 +14,6 @@
 //!   1, 2, 4, 8, averaged over the strides. It is blind to a global scale and penalises wrong
 //!   relative depth (edges, slopes), which per-pixel `L` weighs little on real Kinect depth.
 //!   The default `w = 0` is eq. 21 as printed.
-//! * Optional, not in the paper: `ssi_weight` `v` adds the scale-and-shift-invariant term `S`
-//!   of MiDaS (Ranftl et al., TPAMI 2020, eq. 4 with the least-squares alignment of its
-//!   `ssimse` variant), `Loss = λ·H + (1 − λ)·(L + w·G + v·S)`: per image, the predicted
-//!   disparity `1/d̂` is aligned to the target's `1/d` by the scale and shift that minimise the
-//!   squared error over valid pixels (closed form, not detached), and `S` is the mean absolute
-//!   disparity residual left after it. It rewards relative depth that holds whatever the room's
-//!   size, beside the metric `L` that ties it to the canonical camera ([`super::focal`]).
 //!
 //! Eq. 21 is printed with `−λ·H`; a minus sign would reward a worse segmentation, so it is read
 //! as a typo and the two terms are added.
@@ -78,8 +71,6 @@ pub struct SdfcnnLossConfig {
     pub resolution: LossResolution,
     /// Weight `w` of the gradient-matching shape term `G` (0: eq. 21 as printed).
     pub gradient_weight: f64,
-    /// Weight `v` of the scale-and-shift-invariant disparity term `S` (0: eq. 21 as printed).
-    pub ssi_weight: f64,
 }
 
 impl Default for SdfcnnLossConfig {
@@ -90,7 +81,6 @@ impl Default for SdfcnnLossConfig {
             berhu_ratio: 0.2,
             resolution: LossResolution::Quarter,
             gradient_weight: 0.0,
-            ssi_weight: 0.0,
         }
     }
 }
@@ -106,13 +96,10 @@ pub struct LossParts {
     pub depth: Tensor<1>,
     /// Gradient-matching term `G` (computed only when its weight is not 0).
     pub shape: Option<Tensor<1>>,
-    /// Scale-and-shift-invariant term `S` (computed only when its weight is not 0).
-    pub ssi: Option<Tensor<1>>,
 }
 
 impl SdfcnnLossConfig {
-    /// Checks the ranges (λ in [0, 1], a positive berHu ratio, gradient and SSI weights in
-    /// [0, 100]).
+    /// Checks the ranges (λ in [0, 1], a positive berHu ratio, a gradient weight in [0, 100]).
     pub fn validate(&self) -> Result<(), String> {
         if !(0.0..=1.0).contains(&self.lambda) {
             return Err(format!("loss.lambda = {} must be in [0, 1]", self.lambda));
@@ -127,12 +114,6 @@ impl SdfcnnLossConfig {
             return Err(format!(
                 "loss.gradient_weight = {} must be in [0, 100]",
                 self.gradient_weight
-            ));
-        }
-        if !(0.0..=100.0).contains(&self.ssi_weight) {
-            return Err(format!(
-                "loss.ssi_weight = {} must be in [0, 100]",
-                self.ssi_weight
             ));
         }
         Ok(())
@@ -154,14 +135,10 @@ impl SdfcnnLossConfig {
         let seg = cross_entropy_void(out.seg, labels);
         let shape = (self.gradient_weight > 0.0)
             .then(|| gradient_matching_loss(out.depth.clone(), depth.clone(), &GRADIENT_STRIDES));
-        let ssi = (self.ssi_weight > 0.0).then(|| ssi_loss(out.depth.clone(), depth.clone()));
         let depth = depth_loss(out.depth, depth, self.depth, self.berhu_ratio);
         let mut depth_total = depth.clone();
         if let Some(g) = &shape {
             depth_total = depth_total + g.clone().mul_scalar(self.gradient_weight);
-        }
-        if let Some(v) = &ssi {
-            depth_total = depth_total + v.clone().mul_scalar(self.ssi_weight);
         }
         let total = seg.clone().mul_scalar(self.lambda) + depth_total.mul_scalar(1.0 - self.lambda);
         LossParts {
@@ -169,7 +146,6 @@ impl SdfcnnLossConfig {
             seg,
             depth,
             shape,
-            ssi,
         }
     }
 }
@@ -259,34 +235,6 @@ pub fn gradient_matching_loss(pred: Tensor<4>, gt: Tensor<4>, strides: &[usize])
         scales += 1;
     }
     total.div_scalar(scales.max(1) as f64)
-}
-
-/// Scale-and-shift-invariant disparity loss (MiDaS, Ranftl et al. 2020) of `pred` against `gt`
-/// (both `[N, 1, H, W]` metres, `gt = 0` missing): per image, `s·(1/pred) + t` is fitted to
-/// `1/gt` by least squares over the valid pixels, and the result is the mean absolute residual
-/// over every valid pixel of the batch. 0 when no pixel is valid; an image with one valid pixel
-/// (or a constant prediction) aligns to the target's mean through `t` alone.
-pub fn ssi_loss(pred: Tensor<4>, gt: Tensor<4>) -> Tensor<1> {
-    let m = gt.clone().greater_elem(0.0).float();
-    let p = pred.clamp_min(MIN_LOG_DEPTH).recip() * m.clone();
-    let g = gt.clamp_min(MIN_LOG_DEPTH).recip() * m.clone();
-    let per_image = |t: Tensor<4>| t.sum_dim(3).sum_dim(2).sum_dim(1);
-    let n = per_image(m.clone());
-    let sp = per_image(p.clone());
-    let sg = per_image(g.clone());
-    let spp = per_image(p.clone() * p.clone());
-    let spg = per_image(p.clone() * g.clone());
-    // Normal equations of min Σ (s·p + t − g)²; a degenerate image (det = 0) keeps s = 0 and
-    // takes t = mean g.
-    let det = spp * n.clone() - sp.clone() * sp.clone();
-    let ok = det.clone().greater_elem(1e-9);
-    let safe = det.clone().mask_fill(ok.clone().bool_not(), 1.0);
-    let s = ((n.clone() * spg - sp.clone() * sg.clone()) / safe).mask_fill(ok.bool_not(), 0.0);
-    let t = (sg - s.clone() * sp) / n.clamp_min(1.0);
-    let [bn, c, h, w] = p.dims();
-    let fit = p * s.expand([bn, c, h, w]) + t.expand([bn, c, h, w]);
-    let count = m.clone().sum().clamp_min(1.0).detach();
-    ((fit - g) * m).abs().sum() / count
 }
 
 /// Source index of each of `dst` output samples when resizing an axis of `src` samples with
@@ -526,48 +474,6 @@ mod tests {
         let g = pred.grad(&l.backward()).expect("gradient");
         let g = g.into_data().try_to_vec::<f32>().expect("f32");
         assert!(g.iter().all(|v| v.is_finite()), "{g:?}");
-    }
-
-    #[test]
-    fn ssi_ignores_scale_and_shift_of_disparity_but_not_a_wrong_shape() {
-        for d in devices() {
-            let gt: Vec<f32> = (0..2 * 6 * 8)
-                .map(|i| 0.8 + (i % 11) as f32 * 0.3)
-                .collect();
-            let gt = float4(&gt, [2, 1, 6, 8], &d);
-            // Disparity 2·(1/gt) + 0.1: the same shape in another room size.
-            let pred = gt.clone().recip().mul_scalar(2.0).add_scalar(0.1).recip();
-            let l = scalar(ssi_loss(pred, gt.clone()));
-            assert!(l.abs() < 1e-4, "{l}");
-            // Flat disparity: the residual is the target's mean absolute deviation.
-            let flat = Tensor::<4>::ones([2, 1, 6, 8], &d).mul_scalar(2.0);
-            let l = scalar(ssi_loss(flat, gt.clone()));
-            let disp: Vec<f32> = gt.recip().into_data().try_to_vec::<f32>().unwrap();
-            let mad = |v: &[f32]| {
-                let mean = v.iter().sum::<f32>() / v.len() as f32;
-                v.iter().map(|x| (x - mean).abs()).sum::<f32>() / v.len() as f32
-            };
-            let want = (mad(&disp[..48]) + mad(&disp[48..])) as f64 / 2.0;
-            assert!((l - want).abs() < 1e-4, "{l} vs {want}");
-        }
-    }
-
-    #[test]
-    fn ssi_without_depth_or_with_one_pixel_is_finite() {
-        let d = Device::flex().autodiff();
-        let pred = float4(&[1.0, 2.0, 3.0, 4.0], [1, 1, 2, 2], &d).require_grad();
-        for gt in [[0.0f32; 4], [0.0, 2.0, 0.0, 0.0]] {
-            let l = ssi_loss(pred.clone(), float4(&gt, [1, 1, 2, 2], &d));
-            assert!(scalar(l.clone()).abs() < 1e-6);
-            let g = pred.grad(&l.backward()).expect("gradient");
-            let g = g.into_data().try_to_vec::<f32>().expect("f32");
-            assert!(g.iter().all(|v| v.is_finite()), "{g:?}");
-        }
-        let cfg = SdfcnnLossConfig {
-            ssi_weight: -1.0,
-            ..Default::default()
-        };
-        assert!(cfg.validate().unwrap_err().contains("ssi_weight"));
     }
 
     #[test]

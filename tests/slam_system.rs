@@ -387,13 +387,22 @@ fn synthetic_monocular_with_depth_from_the_semantic_source() {
     assert!(out.semantic_map.len() > 1000);
 }
 
-/// Ground-truth labels and depth, the depth wrong by a slant across the image (8 % too
-/// near at the left edge, 8 % too far at the right), as a network's error often is.
-struct SlantedDepth(GroundTruthSource);
+/// Ground-truth labels and depth, the depth changed by `warp` (a network's error).
+struct WarpedDepth {
+    truth: GroundTruthSource,
+    warp: fn(&mut DepthImage),
+}
 
-impl SemanticSource for SlantedDepth {
+impl WarpedDepth {
+    fn new(seq: &Path, warp: fn(&mut DepthImage)) -> Self {
+        let truth = GroundTruthSource::open(seq, 5000.0).unwrap();
+        WarpedDepth { truth, warp }
+    }
+}
+
+impl SemanticSource for WarpedDepth {
     fn name(&self) -> &'static str {
-        "slanted ground truth"
+        "warped ground truth"
     }
     fn provides_depth(&self) -> bool {
         true
@@ -402,16 +411,25 @@ impl SemanticSource for SlantedDepth {
         &self,
         input: &sdf_slam::slam::SemanticInput<'_>,
     ) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
-        let (labels, depth) = self.0.predict(input)?;
-        let depth = depth.map(|mut d| {
-            let w = d.width as usize;
-            for (i, v) in d.data.iter_mut().enumerate() {
-                *v *= 1.0 + 0.16 * ((i % w) as f32 / w as f32 - 0.5);
-            }
-            d
-        });
+        let (labels, mut depth) = self.truth.predict(input)?;
+        if let Some(d) = depth.as_mut() {
+            (self.warp)(d);
+        }
         Ok((labels, depth))
     }
+}
+
+/// 8 % too near at the left edge, 8 % too far at the right, as a network's error often is.
+fn slant(d: &mut DepthImage) {
+    let w = d.width as usize;
+    for (i, v) in d.data.iter_mut().enumerate() {
+        *v *= 1.0 + 0.16 * ((i % w) as f32 / w as f32 - 0.5);
+    }
+}
+
+/// Every depth 0.7 times the truth: the network's room-size prior in a larger room.
+fn shrink(d: &mut DepthImage) {
+    d.data.iter_mut().for_each(|v| *v *= 0.7);
 }
 
 #[test]
@@ -421,7 +439,7 @@ fn monocular_multiview_depth_makes_keyframes_agree_despite_a_slanted_prediction(
         let mut cfg = config(false);
         cfg.multiview.references = references;
         let mut system = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
-        system.semantics = Box::new(SlantedDepth(GroundTruthSource::open(&seq, 5000.0).unwrap()));
+        system.semantics = Box::new(WarpedDepth::new(&seq, slant));
         let out = system.run(quiet()).unwrap();
         let dir = tmp_dir(&format!("box_multiview_{references}"));
         let sequence = TumSequence::open(&seq).unwrap();
@@ -447,30 +465,6 @@ fn monocular_multiview_depth_makes_keyframes_agree_despite_a_slanted_prediction(
     );
 }
 
-/// Ground-truth labels and depth, every depth `0.7` times the truth: the network's room-size
-/// prior in a room larger than its training rooms.
-struct ShrunkDepth(GroundTruthSource);
-
-impl SemanticSource for ShrunkDepth {
-    fn name(&self) -> &'static str {
-        "shrunk ground truth"
-    }
-    fn provides_depth(&self) -> bool {
-        true
-    }
-    fn predict(
-        &self,
-        input: &sdf_slam::slam::SemanticInput<'_>,
-    ) -> sdf_slam::Result<(LabelImage, Option<DepthImage>)> {
-        let (labels, depth) = self.0.predict(input)?;
-        let depth = depth.map(|mut d| {
-            d.data.iter_mut().for_each(|v| *v *= 0.7);
-            d
-        });
-        Ok((labels, depth))
-    }
-}
-
 #[test]
 fn the_camera_height_fixes_a_monocular_map_whose_depth_has_the_wrong_scale() {
     let seq = box_room();
@@ -479,7 +473,7 @@ fn the_camera_height_fixes_a_monocular_map_whose_depth_has_the_wrong_scale() {
         let mut cfg = config(false);
         cfg.scale.camera_height = height;
         let mut system = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
-        system.semantics = Box::new(ShrunkDepth(GroundTruthSource::open(&seq, 5000.0).unwrap()));
+        system.semantics = Box::new(WarpedDepth::new(&seq, shrink));
         let out = system.run(quiet()).unwrap();
         let dir = tmp_dir(&format!("box_height_{height}"));
         let sequence = TumSequence::open(&seq).unwrap();

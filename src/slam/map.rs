@@ -206,7 +206,8 @@ pub struct KeyFrame {
     pub track: Arc<KeyframeFeatures>,
     /// RGB, depth (sensor or predicted) and labels at the fusion resolution.
     pub view: KeyframeView,
-    /// Depth rescaling found by local correction (1: none).
+    /// Depth rescaling found by local correction, times any scale the anchor applied to the
+    /// run (1: none).
     pub depth_scale: f64,
 }
 

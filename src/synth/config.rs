@@ -412,10 +412,20 @@ impl SynthConfig {
         let [v0, v1] = m.view_height;
         // The camera keeps its clearance from the floor and from the lowest ceiling.
         let top = self.room.height[0] - m.clearance;
-        if !(v0.is_finite() && v1.is_finite() && v0 >= m.clearance && v1 >= v0 && v1 <= top) {
+        // And some of the range must leave a still view its margin from floor and ceiling.
+        let margin = crate::synth::trajectory::VIEW_MARGIN;
+        let reachable = v1 >= m.clearance + margin && v0 <= top - margin;
+        if !(v0.is_finite()
+            && v1.is_finite()
+            && v0 >= m.clearance
+            && v1 >= v0
+            && v1 <= top
+            && reachable)
+        {
             return Err(Error::msg(format!(
                 "motion.view_height = [{v0}, {v1}] must satisfy motion.clearance ({}) <= min <= \
-                 max <= the lowest ceiling (room.height min {}) less the clearance ({top:.2} m)",
+                 max <= the lowest ceiling (room.height min {}) less the clearance ({top:.2} m), \
+                 and reach {margin} m inside that band",
                 m.clearance, self.room.height[0]
             )));
         }

@@ -625,6 +625,9 @@ fn walk(
     Some((dt, keys))
 }
 
+/// Extra distance a still view keeps from every surface beyond `motion.clearance`, metres.
+pub const VIEW_MARGIN: f64 = 0.1;
+
 /// An independent random view (for still-image training sets): a free point
 /// `cfg.view_height` high (0.8 to 1.8 m by default) looking at something in the room.
 pub fn random_view(
@@ -637,7 +640,7 @@ pub fn random_view(
     let mut best: Option<(usize, Pose)> = None;
     for _ in 0..300 {
         let [lo, hi] = cfg.view_height;
-        let Some(p) = free_point(scene, rng, (lo, hi), cfg.clearance + 0.1) else {
+        let Some(p) = free_point(scene, rng, (lo, hi), cfg.clearance + VIEW_MARGIN) else {
             break;
         };
         let mut target = interest(scene, rng, 0.0, 2.5);

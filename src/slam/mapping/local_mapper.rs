@@ -5,7 +5,6 @@
 
 use super::depth_edges::drop_depth_edges;
 use super::multiview_depth::{GrayView, SweepReference, SweepSummary, merge_measured, sweep_depth};
-use super::scale_anchor::depth_ratio;
 use super::semantic_map::SemanticMap;
 use super::semantic_source::{SemanticInput, SemanticSource};
 use crate::camera::Camera;
@@ -58,8 +57,9 @@ pub struct LocalMapper {
     pub multiview_time: StageTime,
     /// Multi-view depth counts summed over the keyframes.
     pub multiview: SweepSummary,
-    /// Each measured keyframe's median multi-view / predicted depth ratio (monocular mode),
-    /// fused over the run by [`super::scale_anchor::fuse_ratios`].
+    /// Each measured keyframe's median multi-view / predicted depth ratio (monocular mode, with
+    /// `multiview.keep_unconfirmed` and `rescale_cells`), fused over the run by
+    /// [`super::scale_anchor::fuse_ratios`].
     pub scale_ratios: Vec<f64>,
     /// Full-resolution grey images of the last `multiview.look_back` keyframes (monocular
     /// mode) with their index in the map: the references of multi-view depth.
@@ -67,9 +67,6 @@ pub struct LocalMapper {
     /// Time spent inserting keyframes into the map and fusing (and re-fusing) them.
     pub fusion_time: StageTime,
 }
-
-/// Measured pixels a keyframe needs for its multi-view / predicted depth ratio.
-const MIN_RATIO_PIXELS: usize = 100;
 
 impl LocalMapper {
     /// A mapper with an empty voxel grid; `monocular`: depth comes from the semantic source.
@@ -243,15 +240,15 @@ impl LocalMapper {
         );
         self.multiview.candidates += summary.candidates;
         self.multiview.confirmed += summary.confirmed;
-        if let Some(r) = depth_ratio(&view.depth.data, &measured.data, MIN_RATIO_PIXELS) {
-            self.scale_ratios.push(r);
-        }
-        merge_measured(
+        // The keyframe's median measured / predicted ratio, for the map-level scale.
+        if let Some(r) = merge_measured(
             &mut view.depth,
             &measured,
             mv.keep_unconfirmed,
             mv.rescale_cells,
-        );
+        ) {
+            self.scale_ratios.push(r as f64);
+        }
     }
 
     /// How far a keyframe's fused view lies from where it is now, metres: the

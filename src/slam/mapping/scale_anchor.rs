@@ -4,8 +4,9 @@
 //! keeps their size. Two measurements check it, and one fixes it:
 //!
 //! * **The floor and the camera height.** A robot knows how high its camera is. The map's points
-//!   labelled `floor` are fitted with a plane (RANSAC, then least squares on the inliers), the
-//!   keyframes' camera centres give the camera's height above it in map units, and a known
+//!   labelled `floor` give a plane (the lowest well-filled level along up, then least squares on
+//!   its points), the keyframes' camera centres give the camera's height above it in map units,
+//!   and a known
 //!   height `H` gives the scale `H / height` ([`FloorFit::scale_for`]). The height is reported
 //!   even when `H` is not given, so a user can check the map against a tape measure.
 //!   Labels on real frames are noisy (table tops and cabinet fronts called floor), so the
@@ -54,7 +55,7 @@ pub struct FloorFit {
     pub offset: f64,
     /// Points labelled floor.
     pub floor_points: usize,
-    /// Of them, those within the inlier distance of the plane.
+    /// Of them, those on the floor's level (within the inlier distance of it along up).
     pub inliers: usize,
     /// Median height of the keyframes' camera centres above the plane (map units).
     pub camera_height: f64,
@@ -115,7 +116,8 @@ pub fn check_camera_height(h: f64) -> Result<f64, String> {
 /// 2. **The floor level.** The heights along up of the floor-labelled points below the
 ///    cameras are counted in bands (a `INLIER_DISTANCE` share of the scene's size either
 ///    side); the floor is the lowest peak of those counts holding a third as many points as
-///    the fullest and a tenth of all floor points: mislabelled table tops and seats lie
+///    the fullest and a tenth of all floor points (and at least half of [`MIN_FLOOR_POINTS`]):
+///    mislabelled table tops and seats lie
 ///    higher, and a peak (not the lowest point) stays put when monocular depth smears it.
 /// 3. **The plane.** Least squares on the level's points gives the normal, which must be
 ///    within [`MAX_TILT_DEG`] of up; the cameras' median height above the plane is the camera
@@ -157,14 +159,14 @@ pub fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, Floo
         return Err(not_planar(0));
     };
     let bin = reach / 2.0;
-    let bins = (((high - low) / bin) as usize + 1).min(MAX_BINS);
+    let bins = ((high - low) / bin).min((MAX_BINS - 1) as f64) as usize + 1;
     let mut counts = vec![0usize; bins];
     for &(h, _) in &heights {
         counts[(((h - low) / bin) as usize).min(bins - 1)] += 1;
     }
-    let window = |c: &[usize], i: usize, r: usize| -> Vec<usize> {
-        c[i.saturating_sub(r)..(i + r + 1).min(c.len())].to_vec()
-    };
+    fn window(c: &[usize], i: usize, r: usize) -> &[usize] {
+        &c[i.saturating_sub(r)..(i + r + 1).min(c.len())]
+    }
     let smooth: Vec<usize> = (0..bins)
         .map(|i| window(&counts, i, 2).iter().sum())
         .collect();
@@ -184,6 +186,9 @@ pub fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, Floo
         .filter(|(h, _)| (h - level).abs() <= reach)
         .map(|&(_, i)| floor[i])
         .collect();
+    if inliers.len() < 3 {
+        return Err(not_planar(inliers.len()));
+    }
     let mean = inliers.iter().sum::<Vector3<f64>>() / inliers.len() as f64;
     let cov = inliers.iter().fold(nalgebra::Matrix3::zeros(), |m, p| {
         m + (p - mean) * (p - mean).transpose()
@@ -195,7 +200,8 @@ pub fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, Floo
     }
     // A level of a wall (floor labels on a wall, spread over its height) is thin along the
     // wall's normal, not along up.
-    if normal.dot(&up) < MAX_TILT_DEG.to_radians().cos() {
+    let faces_up = normal.dot(&up) >= MAX_TILT_DEG.to_radians().cos();
+    if !faces_up {
         return Err(not_planar(inliers.len()));
     }
     let h: Vec<f64> = centres.iter().map(|c| normal.dot(&(c - mean))).collect();
@@ -247,7 +253,7 @@ pub fn up_direction(cameras: &[Pose]) -> Vector3<f64> {
 const MAX_BINS: usize = 100_000;
 
 /// Second eigenvalue of the camera `x` axes' mean outer product above which they turned
-/// enough to fix up (`sin² 10°` ≈ 0.03, halved for the spread of a turn).
+/// enough to fix up (about 14 degrees between two groups of cameras, 24 for an even sweep).
 const MIN_YAW_SPREAD: f64 = 0.015;
 
 impl FloorFit {
@@ -267,7 +273,7 @@ pub struct MultiviewScale {
     pub scale: f64,
     /// Its relative standard error (of the median in log space, from the MAD).
     pub relative_error: f64,
-    /// 10th and 90th percentiles of the keyframes' ratios.
+    /// 10th percentile of the keyframes' ratios.
     pub p10: f64,
     /// 90th percentile of the keyframes' ratios.
     pub p90: f64,
@@ -307,30 +313,10 @@ pub fn fuse_ratios(ratios: &[f64]) -> Option<MultiviewScale> {
     })
 }
 
-/// The median ratio `measured / predicted` over pixels where both are positive; `None` with
-/// fewer than `min_pixels` of them.
-pub fn depth_ratio(predicted: &[f32], measured: &[f32], min_pixels: usize) -> Option<f64> {
-    let r: Vec<f64> = predicted
-        .iter()
-        .zip(measured)
-        .filter(|(p, m)| **p > 0.0 && **m > 0.0)
-        .map(|(p, m)| *m as f64 / *p as f64)
-        .collect();
-    (r.len() >= min_pixels.max(1)).then(|| median(r))
-}
-
+/// The median of the finite values (NaN without any).
 fn median(mut v: Vec<f64>) -> f64 {
     v.retain(|x| x.is_finite());
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
+    crate::metrics::stats::Stats::of(&v).map_or(f64::NAN, |s| s.median)
 }
 
 #[cfg(test)]
@@ -498,13 +484,5 @@ mod tests {
             .collect();
         assert!(fuse_ratios(&wild).unwrap().poorly_determined);
         assert_eq!(fuse_ratios(&[0.0, -1.0, f64::NAN]), None);
-    }
-
-    #[test]
-    fn a_keyframe_ratio_needs_enough_measured_pixels() {
-        let p = [1.0f32, 2.0, 2.0, 0.0, 4.0];
-        let m = [1.5f32, 3.0, 0.0, 9.0, 6.0];
-        assert_eq!(depth_ratio(&p, &m, 3), Some(1.5));
-        assert_eq!(depth_ratio(&p, &m, 4), None);
     }
 }

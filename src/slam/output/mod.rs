@@ -73,7 +73,8 @@ pub fn write_outputs(
         ),
         &points,
         &kf_poses,
-        cfg.map.voxel_size,
+        // The map's own (a monocular map scaled by the camera height scales its voxels).
+        out.semantic_map.voxel_size,
         cfg.map.topdown_size,
     )?;
     outputs.push(top);

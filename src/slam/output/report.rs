@@ -330,7 +330,7 @@ impl Report {
                     (Some(h), None) => {
                         l += &format!(
                             "; sensor depth is metric, so the map is not rescaled: the camera height given ({h:.3} m) is {:+.1} % from it",
-                            100.0 * (f.camera_height / h - 1.0)
+                            100.0 * (h / f.camera_height - 1.0)
                         )
                     }
                     (None, _) => {

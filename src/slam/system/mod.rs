@@ -400,6 +400,9 @@ impl Slam {
             semantic_source,
             scale: scale::ScaleReport::default(),
         };
+        // The tracker's copies of the keyframes' features go first, so that scaling them does
+        // not copy them.
+        drop(run.tracker);
         out.scale = scale::anchor_scale(&mut out, &config, &scale_ratios);
         for w in &out.scale.warnings {
             (control.log)(&format!("warning: {w}"));

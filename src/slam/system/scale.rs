@@ -32,6 +32,9 @@ pub struct ScaleReport {
     pub warnings: Vec<String>,
 }
 
+/// A camera-height scale beyond this factor (or below its inverse) is applied with a warning.
+const MAX_PLAUSIBLE_SCALE: f64 = 3.0;
+
 /// Measures the anchors of a finished run and, in monocular mode with a camera height, scales
 /// `out` by the floor's. `ratios` are the keyframes' multi-view / predicted depth ratios.
 pub fn anchor_scale(out: &mut SlamOutput, cfg: &SlamConfig, ratios: &[f64]) -> ScaleReport {
@@ -59,8 +62,21 @@ pub fn anchor_scale(out: &mut SlamOutput, cfg: &SlamConfig, ratios: &[f64]) -> S
     let cameras: Vec<Pose> = out.map.keyframes.iter().map(|k| k.pose).collect();
     match fit_floor(&points, &cameras) {
         Ok(fit) => {
+            if fit.cameras_below * 10 > cameras.len() {
+                report.warnings.push(format!(
+                    "{} of {} keyframes are below the floor plane: the plane may not be the floor",
+                    fit.cameras_below,
+                    cameras.len()
+                ));
+            }
             if let (true, Some(h)) = (monocular, given) {
                 let s = fit.scale_for(h);
+                if !(1.0 / MAX_PLAUSIBLE_SCALE..=MAX_PLAUSIBLE_SCALE).contains(&s) {
+                    report.warnings.push(format!(
+                        "the camera height scales the map by {s:.3}: check the floor the report \
+                         gives before trusting it"
+                    ));
+                }
                 out.rescale(s);
                 report.applied = Some(s);
             }

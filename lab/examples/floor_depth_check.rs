@@ -41,6 +41,18 @@ fn main() -> Result<()> {
         let rgb = seq.load_rgb(i)?;
         let depth = seq.load_depth(i)?.context("no depth")?;
         let p = sdfcnn.predict_for_camera(&rgb, Some(camera.fx))?;
+        if i == first {
+            println!(
+                "image {}x{}, prediction {}x{}, sensor depth {}x{}, fx {}",
+                rgb.width(),
+                rgb.height(),
+                p.depth.width,
+                p.depth.height,
+                depth.width,
+                depth.height,
+                camera.fx
+            );
+        }
         let (w, h) = (depth.width, depth.height);
         for y in 0..h {
             for x in 0..w {

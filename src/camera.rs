@@ -182,7 +182,8 @@ impl Camera {
         let path = path.as_ref();
         let text = crate::io::read_text(path)?;
         let cam: Camera = toml::from_str(&text).map_err(|e| toml_error(path, &text, e))?;
-        cam.validate().map_err(|m| Error::invalid(path, m))?;
+        cam.validate()
+            .map_err(|m| crate::io::config_error(path, &text, m))?;
         Ok(cam)
     }
 

@@ -65,9 +65,22 @@ pub fn toml_key_line(text: &str, dotted: &str) -> Option<usize> {
     let mut current = "";
     for (i, line) in text.lines().enumerate() {
         let t = line.trim();
-        if let Some(h) = t.strip_prefix('[').filter(|_| !t.starts_with("[[")) {
-            current = h.split(']').next().unwrap_or("").trim();
-            continue;
+        // A table header `[a.b]` (its name plain: a row `[8, 0.1],` of a multi-line array is
+        // not one); `[[array]]` tables end the section.
+        if let Some(name) = t
+            .strip_prefix('[')
+            .and_then(|h| h.split_once(']'))
+            .map(|(name, rest)| (name.trim(), rest.trim()))
+            .filter(|(_, rest)| rest.is_empty() || rest.starts_with('#') || rest == &"]")
+            .map(|(name, _)| name)
+        {
+            let plain = name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '['));
+            if plain {
+                current = if name.starts_with('[') { "" } else { name };
+                continue;
+            }
         }
         if current == section
             && let Some(rest) = t.strip_prefix(key)
@@ -439,6 +452,11 @@ mod tests {
         assert_eq!(toml_key_line(text, "motion.view_height"), Some(7));
         assert_eq!(toml_key_line(text, "motion.height"), None);
         assert_eq!(toml_key_line(text, "seed"), None);
+        // Rows of a multi-line array are not table headers.
+        let arrays =
+            "[optimizer]\nlr_steps = [\n    [8, 0.1],\n]\nlr = -1.0\n[[data.train]]\nlr = 2\n";
+        assert_eq!(toml_key_line(arrays, "optimizer.lr"), Some(5));
+        assert_eq!(toml_key_line(arrays, "optimizer.lr_steps"), Some(2));
         let m = "motion.view_height = [0.3, 3.0] must satisfy motion.clearance (0.3) <= min";
         assert_eq!(message_key_line(text, m), Some(7));
         let e = config_error(Path::new("s.toml"), text, m.to_string()).to_string();

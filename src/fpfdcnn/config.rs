@@ -199,7 +199,7 @@ impl FpfdcnnTrainConfig {
                 .try_into()
                 .map_err(|e: toml::de::Error| Error::invalid(path, e.to_string()))?
         };
-        let bad = |m: String| Err(Error::invalid(path, m));
+        let bad = |m: String| Err(crate::io::config_error(path, text, m));
         if cfg.model != "fpfdcnn" {
             return bad(format!("model = \"{}\" is not \"fpfdcnn\"", cfg.model));
         }
@@ -226,7 +226,7 @@ impl FpfdcnnTrainConfig {
         }
         cfg.optimizer
             .validate()
-            .map_err(|m| Error::invalid(path, m))?;
+            .map_err(|m| crate::io::config_error(path, text, m))?;
         if !legacy && cfg.data.sequences.is_empty() {
             // Checked here, not only when the data are read, so that `--dry-run` says it.
             return bad(
@@ -235,8 +235,12 @@ impl FpfdcnnTrainConfig {
                     .into(),
             );
         }
-        cfg.loss.validate().map_err(|m| Error::invalid(path, m))?;
-        cfg.data.validate().map_err(|m| Error::invalid(path, m))?;
+        cfg.loss
+            .validate()
+            .map_err(|m| crate::io::config_error(path, text, m))?;
+        cfg.data
+            .validate()
+            .map_err(|m| crate::io::config_error(path, text, m))?;
         let [h, w] = cfg.data.size;
         for (weight, what) in [
             (cfg.loss.shift_consistency, "shift_consistency"),

@@ -11,7 +11,7 @@ use super::data::DataSource;
 use super::loss::SdfcnnLossConfig;
 use crate::camera::toml_error;
 use crate::dataset::augment::AugmentConfig;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::training::{BackendKind, OptimizerConfig};
 
 /// A complete SDFCNN training config (TOML).
@@ -185,7 +185,8 @@ impl SdfcnnTrainConfig {
     /// Parses and checks a config; errors name `path` (and the line).
     pub fn parse(text: &str, path: &Path) -> Result<Self> {
         let cfg: SdfcnnTrainConfig = toml::from_str(text).map_err(|e| toml_error(path, text, e))?;
-        cfg.validate().map_err(|m| Error::invalid(path, m))?;
+        cfg.validate()
+            .map_err(|m| crate::io::config_error(path, text, m))?;
         Ok(cfg)
     }
 

@@ -22,6 +22,19 @@ pub struct Stats {
     pub pairs: usize,
 }
 
+/// The median of `values` (the mean of the two middle ones for an even count); NaN without
+/// any.
+pub fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => f64::NAN,
+        _ if n % 2 == 1 => v[n / 2],
+        _ => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
 impl Stats {
     /// Statistics of `errors`; `None` when there are none.
     pub fn of(errors: &[f64]) -> Option<Stats> {
@@ -33,20 +46,14 @@ impl Stats {
         let mean = errors.iter().sum::<f64>() / nf;
         let rmse = (errors.iter().map(|e| e * e).sum::<f64>() / nf).sqrt();
         let var = errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / nf;
-        let mut sorted = errors.to_vec();
-        sorted.sort_by(f64::total_cmp);
-        let median = if n % 2 == 1 {
-            sorted[n / 2]
-        } else {
-            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-        };
+        let median = median(errors);
         Some(Stats {
             rmse,
             mean,
             median,
             std: var.sqrt(),
-            min: sorted[0],
-            max: sorted[n - 1],
+            min: errors.iter().copied().min_by(f64::total_cmp)?,
+            max: errors.iter().copied().max_by(f64::total_cmp)?,
             pairs: n,
         })
     }

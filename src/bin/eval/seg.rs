@@ -92,17 +92,8 @@ impl ImageDepth {
 
 /// The median of `v` (NaN when empty): of the times per image (the first, warm-up run not
 /// counted) and of an image's depths.
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+fn median(v: Vec<f64>) -> f64 {
+    sdf_slam::metrics::stats::median(&v)
 }
 
 /// The images of `--data` with their camera, checked as a training source is

@@ -316,7 +316,7 @@ pub fn fuse_ratios(ratios: &[f64]) -> Option<MultiviewScale> {
 /// The median of the finite values (NaN without any).
 fn median(mut v: Vec<f64>) -> f64 {
     v.retain(|x| x.is_finite());
-    crate::metrics::stats::Stats::of(&v).map_or(f64::NAN, |s| s.median)
+    crate::metrics::stats::median(&v)
 }
 
 #[cfg(test)]

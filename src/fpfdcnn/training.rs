@@ -261,6 +261,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         accumulate: cfg.accumulate,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
+        validate_start: cfg.init.is_some() && !val.pairs.is_empty(),
         quiet: opts.quiet,
     };
     fit(&learner, &setup, model)?;

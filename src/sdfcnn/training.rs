@@ -121,6 +121,8 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         accumulate: cfg.accumulate,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
+        // Fine-tuning a trained SDFCNN (not an ImageNet start): is it better than before?
+        validate_start: cfg.init.as_deref().is_some_and(|p| !is_safetensors(p)) && val.is_some(),
         quiet: opts.quiet,
     };
     fit(&learner, &setup, model)?;
@@ -225,10 +227,7 @@ fn initialise(
     train: &SegDepthData,
     cfg: &SdfcnnTrainConfig,
 ) -> Result<Sdfcnn> {
-    let is_safetensors = init
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("safetensors"));
-    if !is_safetensors {
+    if !is_safetensors(init) {
         let (weights, config) = crate::training::resolve_checkpoint(init)?;
         let model = load_weights(model, &weights, &config)?;
         println!("initialised from {}", weights.display());
@@ -324,6 +323,12 @@ fn epoch_summary(values: &BTreeMap<String, f64>) -> String {
         }
     }
     s.trim_start().to_string()
+}
+
+/// Whether `init` names ImageNet weights (a `.safetensors` file) rather than a checkpoint.
+fn is_safetensors(init: &Path) -> bool {
+    init.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("safetensors"))
 }
 
 fn fmt_size([h, w]: [usize; 2]) -> String {

@@ -878,6 +878,7 @@ mod tests {
             step: 4,
             history: History {
                 epochs: vec![record(1), record(2)],
+                start: None,
             },
         };
         assert_eq!(state.check(), Ok(()));

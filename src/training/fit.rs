@@ -128,6 +128,9 @@ pub struct Fit<'a> {
     pub optimizer: &'a OptimizerConfig,
     /// Continue from the run's last checkpoint (the model given is then only its shape).
     pub resume: bool,
+    /// Validate the model given before the first epoch (a fresh run that fine-tunes trained
+    /// weights): epoch 0 of the history, compared with the best epoch at the end.
+    pub validate_start: bool,
     /// Hide the progress bar.
     pub quiet: bool,
 }
@@ -184,6 +187,11 @@ pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result
     let (mut model, mut state) = (model, TrainState::default());
     if fit.resume {
         (model, optim, state) = resume(learner, fit, model, optim)?;
+    } else if fit.validate_start {
+        let mut values = BTreeMap::new();
+        learner.validate(&model.valid(), &mut values)?;
+        println!("epoch 0 (the starting weights): {}", learner.summary(&values));
+        state.history.start = Some(values);
     }
     for epoch in state.epoch..fit.epochs {
         let started = Instant::now();
@@ -224,6 +232,14 @@ pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result
             fit.epochs,
             started.elapsed().as_secs_f64(),
             ckpt.dir.display()
+        );
+    }
+    if let Some(start) = state.history.start.as_ref().and_then(|v| v.get("val_loss"))
+        && let Some((0, _)) = state.history.best("val_loss", false)
+    {
+        println!(
+            "the starting weights validate better than every epoch (val_loss {start:.4}): \
+             training did not improve them on the validation data; keep them"
         );
     }
     Ok(model)
@@ -595,7 +611,13 @@ mod tests {
             })
         }
 
-        fn validate(&self, _: &Self::Model, _: &mut BTreeMap<String, f64>) -> Result<()> {
+        /// The loss over every sample.
+        fn validate(&self, model: &Self::Model, values: &mut BTreeMap<String, f64>) -> Result<()> {
+            let device = model.weight.val().device();
+            let x: Vec<f32> = (0..self.len).map(|i| i as f32 / 10.0).collect();
+            let x = Tensor::<2>::from_data(TensorData::new(x, [self.len, 1]), &device);
+            let loss = model.forward(x).powi_scalar(2).mean().into_scalar::<f32>();
+            values.insert("val_loss".into(), loss as f64);
             Ok(())
         }
 
@@ -609,6 +631,16 @@ mod tests {
         fail_at: Option<usize>,
         accumulate: usize,
     ) -> (Toy, Result<burn::nn::Linear>) {
+        toy_fit_history(name, fail_at, accumulate, false).0
+    }
+
+    /// [`toy_fit`], with the run's `metrics.csv` and the starting weights validated or not.
+    fn toy_fit_history(
+        name: &str,
+        fail_at: Option<usize>,
+        accumulate: usize,
+        validate_start: bool,
+    ) -> ((Toy, Result<burn::nn::Linear>), String) {
         let root = std::env::temp_dir().join(format!("sdf_fit_{name}_{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let run = RunDir::prepare(&root, "model = \"toy\"\n", false).unwrap();
@@ -623,6 +655,7 @@ mod tests {
             accumulate,
             optimizer: &optimizer,
             resume: false,
+            validate_start,
             quiet: true,
         };
         let device = Device::flex().autodiff();
@@ -634,8 +667,25 @@ mod tests {
             seen: Default::default(),
         };
         let out = fit(&toy, &setup, model);
+        let csv = std::fs::read_to_string(root.join("metrics.csv")).unwrap_or_default();
         let _ = std::fs::remove_dir_all(&root);
-        (toy, out)
+        ((toy, out), csv)
+    }
+
+    #[test]
+    fn the_starting_weights_are_validated_as_epoch_0_when_asked() {
+        let epoch_0 = |csv: &str| csv.lines().nth(1).map(|l| l.split(',').next() == Some("0"));
+        let (_, csv) = toy_fit_history("no_start", None, 1, false);
+        assert_eq!(epoch_0(&csv), Some(false), "{csv}");
+        let ((_, out), csv) = toy_fit_history("start", None, 1, true);
+        out.unwrap();
+        let val_loss = |line: &str| -> f64 { line.rsplit(',').next().unwrap().parse().unwrap() };
+        let lines: Vec<&str> = csv.lines().collect();
+        assert!(lines[0].ends_with(",val_loss"), "{csv}");
+        assert_eq!(lines.len(), 4, "{csv}");
+        assert!(lines[1].starts_with("0,,,"), "{csv}");
+        // The toy's validation is its training loss: epoch 0 is the untrained one.
+        assert!(val_loss(lines[1]) > val_loss(lines[3]), "{csv}");
     }
 
     #[test]

@@ -26,6 +26,11 @@ pub struct EpochRecord {
 pub struct History {
     /// One record per epoch run.
     pub epochs: Vec<EpochRecord>,
+    /// The validation of the starting weights, before the first epoch (a run that fine-tunes
+    /// a trained checkpoint): epoch 0 in `metrics.csv` and the plots, so that a user sees
+    /// whether training improved on them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start: Option<BTreeMap<String, f64>>,
 }
 
 impl History {
@@ -35,23 +40,25 @@ impl History {
         self.epochs.push(r);
     }
 
+    /// The validation of the starting weights as epoch 0's values, then each epoch's.
+    fn rows(&self) -> impl Iterator<Item = (usize, &BTreeMap<String, f64>)> {
+        let start = self.start.iter().map(|v| (0, v));
+        start.chain(self.epochs.iter().map(|e| (e.epoch, &e.values)))
+    }
+
     /// Every metric name that appears.
     pub fn keys(&self) -> Vec<String> {
-        let mut k: Vec<String> = self
-            .epochs
-            .iter()
-            .flat_map(|e| e.values.keys().cloned())
-            .collect();
+        let mut k: Vec<String> = self.rows().flat_map(|(_, v)| v.keys().cloned()).collect();
         k.sort();
         k.dedup();
         k
     }
 
-    /// The epoch with the best value of `key` (`maximize` or minimise).
+    /// The epoch with the best value of `key` (`maximize` or minimise); 0 is the starting
+    /// weights (when validated).
     pub fn best(&self, key: &str, maximize: bool) -> Option<(usize, f64)> {
-        self.epochs
-            .iter()
-            .filter_map(|e| e.values.get(key).map(|v| (e.epoch, *v)))
+        self.rows()
+            .filter_map(|(epoch, values)| values.get(key).map(|v| (epoch, *v)))
             .filter(|(_, v)| v.is_finite())
             .max_by(|a, b| {
                 if maximize {
@@ -62,7 +69,8 @@ impl History {
             })
     }
 
-    /// `epoch,lr,seconds,<metrics...>` with empty cells for missing values.
+    /// `epoch,lr,seconds,<metrics...>` with empty cells for missing values; the starting
+    /// weights' validation is epoch 0, without a learning rate or time.
     pub fn to_csv(&self) -> String {
         let keys = self.keys();
         let mut s = String::from("epoch,lr,seconds");
@@ -70,10 +78,10 @@ impl History {
             let _ = write!(s, ",{k}");
         }
         s.push('\n');
-        for e in &self.epochs {
-            let _ = write!(s, "{},{},{:.3}", e.epoch, e.lr, e.seconds);
+        let row = |s: &mut String, head: String, values: &BTreeMap<String, f64>| {
+            s.push_str(&head);
             for k in &keys {
-                match e.values.get(k) {
+                match values.get(k) {
                     Some(v) => {
                         let _ = write!(s, ",{v}");
                     }
@@ -81,6 +89,13 @@ impl History {
                 }
             }
             s.push('\n');
+        };
+        if let Some(values) = &self.start {
+            row(&mut s, "0,,".into(), values);
+        }
+        for e in &self.epochs {
+            let head = format!("{},{},{:.3}", e.epoch, e.lr, e.seconds);
+            row(&mut s, head, &e.values);
         }
         s
     }
@@ -109,9 +124,8 @@ impl History {
             .map(|k| Series {
                 name: k,
                 points: self
-                    .epochs
-                    .iter()
-                    .filter_map(|e| e.values.get(k).map(|v| (e.epoch as f64, *v)))
+                    .rows()
+                    .filter_map(|(epoch, values)| values.get(k).map(|v| (epoch as f64, *v)))
                     .collect(),
             })
             .filter(|s| !s.points.is_empty())
@@ -148,6 +162,17 @@ mod tests {
         let csv = h.to_csv();
         assert!(
             csv.starts_with("epoch,lr,seconds,train_loss,val_miou\n1,0.1,1.000,2,\n"),
+            "{csv}"
+        );
+        // The starting weights' validation: epoch 0, the best when no epoch beats it.
+        let mut start = BTreeMap::new();
+        start.insert("val_miou".to_string(), 0.35);
+        h.start = Some(start);
+        assert_eq!(h.best("val_miou", true), Some((0, 0.35)));
+        assert_eq!(h.best("train_loss", false), Some((2, 1.0)));
+        let csv = h.to_csv();
+        assert!(
+            csv.starts_with("epoch,lr,seconds,train_loss,val_miou\n0,,,,0.35\n1,0.1,1.000,2,\n"),
             "{csv}"
         );
     }

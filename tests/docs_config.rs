@@ -217,7 +217,7 @@ fn struct_keys() -> BTreeMap<&'static str, Keys> {
     );
     let sdfcnn = minimal::<SdfcnnTrainConfig>(
         "model = \"sdfcnn\"\nout = \"runs/x\"\nepochs = 1\nbatch_size = 1\n\
-         [[data.train]]\npath = \"data\"\n",
+         [[data.train]]\npath = \"data\"\n[[data.video]]\npath = \"v\"\ntrajectory = \"t.txt\"\n",
     );
     all.insert(
         "train-sdfcnn",

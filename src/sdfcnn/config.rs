@@ -101,6 +101,11 @@ pub struct DataConfig {
     /// Validation sources (none: no validation); named ones get their own metrics.
     #[serde(default)]
     pub val: Vec<DataSource>,
+    /// Recordings with a trajectory whose colour frames train the depth by the photometric
+    /// loss ([`super::video`], [`super::photometric`]), beside `train` (which may then be
+    /// empty).
+    #[serde(default)]
+    pub video: Vec<super::video::VideoSource>,
     /// Training image size `[height, width]` the samples are cropped and resized to.
     #[serde(default = "default_size")]
     pub size: [usize; 2],
@@ -178,6 +183,9 @@ impl SdfcnnTrainConfig {
                 *s = s.resolved(config_path);
             }
         }
+        for s in self.data.video.iter_mut() {
+            *s = s.resolved(config_path);
+        }
         self.init = self.init.map(|p| super::data::resolve(&p, config_path));
         self
     }
@@ -230,8 +238,14 @@ impl SdfcnnTrainConfig {
             .augment
             .validate()
             .map_err(|m| format!("data.{m}"))?;
-        if self.data.train.is_empty() {
-            return Err("[data] train lists no dataset folder".into());
+        if self.data.train.is_empty() && self.data.video.is_empty() {
+            return Err("[data] train lists no dataset folder (and video no recording)".into());
+        }
+        let imagenet = self.init.as_ref().and_then(|p| p.extension());
+        if self.data.train.is_empty()
+            && imagenet.is_some_and(|e| e.eq_ignore_ascii_case("safetensors"))
+        {
+            return Err("an ImageNet start (init = *.safetensors) needs [data] train: the photometric loss alone cannot teach the segmentation or a depth scale".into());
         }
         let sizes = [Some(self.data.size), self.data.val_size];
         if sizes.iter().flatten().any(|s| s.contains(&0)) {
@@ -279,10 +293,10 @@ impl SdfcnnTrainConfig {
             ));
         }
         self.optimizer.validate()?;
-        if self.data.train.len() + self.data.val.len() > MAX_SOURCES {
+        let sources = self.data.train.len() + self.data.val.len() + self.data.video.len();
+        if sources > MAX_SOURCES {
             return Err(format!(
-                "[data] lists {} train and val sources, more than {MAX_SOURCES}",
-                self.data.train.len() + self.data.val.len()
+                "[data] lists {sources} train, val and video sources, more than {MAX_SOURCES}"
             ));
         }
         self.loss.validate()?;

@@ -71,6 +71,11 @@ pub struct SdfcnnLossConfig {
     pub resolution: LossResolution,
     /// Weight `w` of the gradient-matching shape term `G` (0: eq. 21 as printed).
     pub gradient_weight: f64,
+    /// Weight of the photometric loss on `[data] video` samples ([`super::photometric`])
+    /// against eq. 21 on the other samples.
+    pub photometric: f64,
+    /// Weight of the edge-aware smoothness within the photometric loss (Monodepth2: 0.001).
+    pub smoothness: f64,
 }
 
 impl Default for SdfcnnLossConfig {
@@ -81,6 +86,8 @@ impl Default for SdfcnnLossConfig {
             berhu_ratio: 0.2,
             resolution: LossResolution::Quarter,
             gradient_weight: 0.0,
+            photometric: 1.0,
+            smoothness: 0.001,
         }
     }
 }
@@ -115,6 +122,14 @@ impl SdfcnnLossConfig {
                 "loss.gradient_weight = {} must be in [0, 100]",
                 self.gradient_weight
             ));
+        }
+        for (name, w) in [
+            ("photometric", self.photometric),
+            ("smoothness", self.smoothness),
+        ] {
+            if !(0.0..=100.0).contains(&w) {
+                return Err(format!("loss.{name} = {w} must be in [0, 100]"));
+            }
         }
         Ok(())
     }

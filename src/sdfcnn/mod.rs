@@ -10,9 +10,11 @@ pub mod inference;
 pub mod loss;
 mod model;
 pub mod packed;
+pub mod photometric;
 mod source;
 pub mod training;
 mod validation;
+pub mod video;
 
 pub use blocks::BnProbe;
 pub use inference::{Prediction, SdfcnnPredictor};

@@ -26,6 +26,10 @@
 //! draws the same data order and augmentations as an uninterrupted run, so its loss curve
 //! continues the same numbers.
 //!
+//! `[data] video` adds recordings with a trajectory, trained by the photometric loss of
+//! [`super::photometric`] (weight `loss.photometric`; `train` may then be empty): a batch
+//! draws from both, each sample weighing the same.
+//!
 //! Validation runs the network at `data.val_size` (default: the training size) on unaugmented
 //! images; seg/depth metrics compare the outputs upsampled to that size with the targets
 //! resized there by nearest neighbour. `eval seg` evaluates at the original resolution.
@@ -41,6 +45,7 @@ use super::data::{SdfcnnBatch, SegDepthData};
 use super::inference::load_weights;
 use super::loss::{LossParts, LossResolution};
 use super::validation::validate;
+use super::video::{VideoData, VideoSample};
 use super::{Sdfcnn, SdfcnnOutput};
 use crate::dataset::augment::{AugmentConfig, SegDepthSample};
 use crate::error::{Error, Result};
@@ -62,6 +67,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let device = cfg.backend.autodiff_device()?;
     let focal = cfg.network.depth_focal;
     let train = SegDepthData::open(&cfg.data.train)?.with_canonical(focal);
+    let video = VideoData::open(&cfg.data.video)?.with_canonical(focal);
     let val = if cfg.data.val.is_empty() {
         None
     } else {
@@ -96,8 +102,13 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         Ok(Some(toml::to_string_pretty(&c)?))
     })?;
     run.keep = cfg.keep_checkpoints;
+    let videos = if video.is_empty() {
+        String::new()
+    } else {
+        format!(" and {} video frames", video.len())
+    };
     println!(
-        "SDFCNN: {} training samples, {} validation samples, {} on {}, batch {}, {} epochs -> {}",
+        "SDFCNN: {} training samples{videos}, {} validation samples, {} on {}, batch {}, {} epochs -> {}",
         train.len(),
         val.as_ref().map_or(0, |v| v.len()),
         fmt_size(cfg.data.size),
@@ -109,6 +120,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
     let learner = SdfLearner {
         cfg: &cfg,
         train: &train,
+        video: &video,
         val: val.as_ref(),
         device: &device,
     };
@@ -134,8 +146,15 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
 struct SdfLearner<'a> {
     cfg: &'a SdfcnnTrainConfig,
     train: &'a SegDepthData,
+    video: &'a VideoData,
     val: Option<&'a SegDepthData>,
     device: &'a Device,
+}
+
+/// A batch on the host: samples with targets (eq. 21) and video samples (photometric).
+struct SdfBatch {
+    supervised: Vec<SegDepthSample>,
+    video: Vec<VideoSample>,
 }
 
 impl Learner for SdfLearner<'_> {
@@ -146,26 +165,69 @@ impl Learner for SdfLearner<'_> {
     }
 
     fn train_len(&self) -> usize {
-        self.train.len()
+        self.train.len() + self.video.len()
     }
 
-    type Batch = Vec<SegDepthSample>;
+    type Batch = SdfBatch;
 
-    fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<Vec<SegDepthSample>> {
+    /// Indices from `train.len()` on are video samples.
+    fn load(&self, ids: &[usize], rng: &mut ChaCha8Rng) -> Result<SdfBatch> {
+        use rayon::prelude::*;
         let data = &self.cfg.data;
-        self.train.load_batch(ids, data.size, &data.augment, rng)
+        let first_video = self.train.len();
+        let (labelled, video): (Vec<usize>, Vec<usize>) =
+            ids.iter().partition(|&&i| i < first_video);
+        Ok(SdfBatch {
+            supervised: self
+                .train
+                .load_batch(&labelled, data.size, &data.augment, rng)?,
+            video: video
+                .par_iter()
+                .map(|&i| self.video.load(i - first_video, data.size))
+                .collect::<Result<_>>()?,
+        })
     }
 
-    fn train_step(&self, model: &Sdfcnn, samples: Vec<SegDepthSample>) -> Result<Step> {
+    /// Eq. 21 on the samples with targets and the photometric loss on the video samples,
+    /// weighted by their shares of the batch. The logged terms are each part's mean over its
+    /// own samples (0 in a batch without any).
+    fn train_step(&self, model: &Sdfcnn, batch: SdfBatch) -> Result<Step> {
         let cfg = self.cfg;
-        let n = samples.len();
-        let batch = SdfcnnBatch::from_samples(&samples, self.device)?;
-        let out = forward(model, batch.images, cfg.loss.resolution)?;
-        let loss = cfg.loss.forward(out, batch.labels, batch.depth);
+        let (k, m) = (batch.supervised.len(), batch.video.len());
+        let n = (k + m) as f64;
+        let mut terms = Vec::new();
+        let mut total: Option<Tensor<1>> = None;
+        let mut add = |part: Tensor<1>, share: f64| {
+            let part = part * share;
+            total = Some(match total.take() {
+                Some(t) => t + part,
+                None => part,
+            });
+        };
+        if k > 0 {
+            let b = SdfcnnBatch::from_samples(&batch.supervised, self.device)?;
+            let out = forward(model, b.images, cfg.loss.resolution)?;
+            let loss = cfg.loss.forward(out, b.labels, b.depth);
+            terms.extend(loss_terms(&loss));
+            add(loss.total, k as f64 / n);
+        } else if !self.train.is_empty() {
+            terms.extend([("seg_loss", 0.0), ("depth_loss", 0.0)]);
+        }
+        if m > 0 {
+            let (photo, smooth) = video_loss(model, &batch.video, self.device)?;
+            terms.extend([
+                ("photo_loss", scalar(&photo)),
+                ("smooth_loss", scalar(&smooth)),
+            ]);
+            let w = cfg.loss.photometric;
+            add((photo + smooth * cfg.loss.smoothness) * w, m as f64 / n);
+        } else if !self.video.is_empty() {
+            terms.extend([("photo_loss", 0.0), ("smooth_loss", 0.0)]);
+        }
         Ok(Step {
-            terms: loss_terms(&loss),
-            loss: loss.total,
-            samples: n,
+            terms,
+            loss: total.ok_or_else(|| Error::msg("empty batch"))?,
+            samples: k + m,
         })
     }
 
@@ -257,6 +319,42 @@ fn initialise(
         values.len()
     );
     Ok(model)
+}
+
+/// The photometric reprojection loss and the smoothness of video samples of one size
+/// ([`super::photometric`]), the depth predicted at the input size and made metric.
+fn video_loss(
+    model: &Sdfcnn,
+    samples: &[VideoSample],
+    device: &Device,
+) -> Result<(Tensor<1>, Tensor<1>)> {
+    use super::photometric::{reprojection_loss, smoothness_loss};
+    let n = samples.len();
+    let [h, w] = samples[0].size;
+    if samples.iter().any(|s| s.size != [h, w]) {
+        return Err(Error::msg("batch samples differ in size"));
+    }
+    let images = |slot: usize| {
+        let data: Vec<f32> = samples
+            .iter()
+            .flat_map(|s| s.images[slot].iter().copied())
+            .collect();
+        Tensor::<4>::from_data(TensorData::new(data, [n, 3, h, w]), device)
+    };
+    let rows = |f: &dyn Fn(&VideoSample) -> Vec<f32>, width: usize| {
+        let data: Vec<f32> = samples.iter().flat_map(f).collect();
+        Tensor::<2>::from_data(TensorData::new(data, [n, width]), device)
+    };
+    let target = images(0);
+    let k = rows(&|s| s.k.to_vec(), 4);
+    let sources = [
+        (images(1), rows(&|s| s.poses[0].to_vec(), 12)),
+        (images(2), rows(&|s| s.poses[1].to_vec(), 12)),
+    ];
+    let metric = rows(&|s| vec![s.metric], 1).reshape([n, 1, 1, 1]);
+    let depth = model.forward(target.clone())?.depth * metric;
+    let photo = reprojection_loss(target.clone(), depth.clone(), &sources, k);
+    Ok((photo, smoothness_loss(depth, target)))
 }
 
 /// Network outputs at the loss resolution.
@@ -597,6 +695,72 @@ crp_stages = 2
             "{msg}"
         );
         assert_eq!(losses(&out).len(), 3, "epoch 1's checkpoint is the latest");
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn video_frames_train_by_the_photometric_loss_beside_labelled_images_or_alone() {
+        let seq = "datasets/fixtures/tum_fr1_rpy_head10";
+        let video = format!(
+            "video = [{{ path = \"{seq}\", camera = \"fr1\", trajectory = \"{seq}/groundtruth.txt\", gap = 2 }}]"
+        );
+        for (name, train) in [
+            (
+                "mixed",
+                r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#.to_string(),
+            ),
+            ("alone", "train = []".to_string()),
+        ] {
+            let root = tmp(&format!("video_{name}"));
+            let text = tiny_config(&root, "")
+                .replace("epochs = 2", "epochs = 1")
+                .replace(
+                    r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#,
+                    &format!("{train}\n{video}"),
+                );
+            let cfg_path = root.join("c.toml");
+            std::fs::write(&cfg_path, &text).unwrap();
+            run(&cfg_path, &text, &quiet()).expect(name);
+            let csv = std::fs::read_to_string(root.join("metrics.csv")).unwrap();
+            let (head, row) = (csv.lines().next().unwrap(), csv.lines().nth(1).unwrap());
+            let value = |key: &str| -> f64 {
+                let i = head
+                    .split(',')
+                    .position(|k| k == key)
+                    .unwrap_or_else(|| panic!("{key}: {head}"));
+                row.split(',').nth(i).unwrap().parse().unwrap()
+            };
+            // Frames 2..8 have both sources two frames away: a photometric error of real
+            // images, positive and below the largest possible (1).
+            let photo = value("train_photo_loss");
+            assert!(photo > 0.0 && photo < 1.0, "{name}: {photo}");
+            assert!(value("train_loss").is_finite());
+            assert_eq!(head.contains("train_seg_loss"), name == "mixed", "{head}");
+            std::fs::remove_dir_all(&root).ok();
+        }
+    }
+
+    #[test]
+    fn a_trajectory_that_misses_the_frames_is_an_error_naming_it() {
+        let root = tmp("video_no_poses");
+        std::fs::create_dir_all(&root).unwrap();
+        let trajectory = root.join("elsewhere.txt");
+        std::fs::write(&trajectory, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n").unwrap();
+        let seq = "datasets/fixtures/tum_fr1_rpy_head10";
+        let text = tiny_config(&root, "").replace(
+            r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#,
+            &format!(
+                "train = []\nvideo = [{{ path = \"{seq}\", camera = \"fr1\", trajectory = \"{}\" }}]",
+                trajectory.display()
+            ),
+        );
+        let cfg_path = root.join("c.toml");
+        std::fs::write(&cfg_path, &text).unwrap();
+        let err = run(&cfg_path, &text, &quiet()).unwrap_err().to_string();
+        assert!(
+            err.contains("elsewhere.txt") && err.contains("has a pose"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&root).ok();
     }
 }

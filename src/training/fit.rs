@@ -190,7 +190,10 @@ pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result
     } else if fit.validate_start {
         let mut values = BTreeMap::new();
         learner.validate(&model.valid(), &mut values)?;
-        println!("epoch 0 (the starting weights): {}", learner.summary(&values));
+        println!(
+            "epoch 0 (the starting weights): {}",
+            learner.summary(&values)
+        );
         state.history.start = Some(values);
     }
     for epoch in state.epoch..fit.epochs {

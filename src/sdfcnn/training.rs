@@ -102,10 +102,20 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         Ok(Some(toml::to_string_pretty(&c)?))
     })?;
     run.keep = cfg.keep_checkpoints;
-    let videos = if video.is_empty() {
-        String::new()
-    } else {
-        format!(" and {} video frames", video.len())
+    let videos = match video.median_baseline() {
+        None => String::new(),
+        Some(b) => {
+            // Below a centimetre, a frame and its sources look at the scene from almost one
+            // point: the photometric loss then constrains the depth little.
+            if b < 0.01 {
+                eprintln!(
+                    "warning: the video frames are a median {:.1} mm from their sources: the \
+                     photometric loss learns depth from the camera's translation; raise `gap`",
+                    b * 1000.0
+                );
+            }
+            format!(" and {} video frames ({:.1} cm from their sources)", video.len(), b * 100.0)
+        }
     };
     println!(
         "SDFCNN: {} training samples{videos}, {} validation samples, {} on {}, batch {}, {} epochs -> {}",

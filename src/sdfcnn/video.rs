@@ -141,6 +141,19 @@ impl VideoData {
         self.index.is_empty()
     }
 
+    /// The median distance between a target camera and its sources, metres (`None` without
+    /// samples): the photometric loss learns depth from this translation; a camera turning in
+    /// place teaches nothing.
+    pub fn median_baseline(&self) -> Option<f64> {
+        let baselines: Vec<f64> = self
+            .recordings
+            .iter()
+            .flat_map(|r| &r.triples)
+            .flat_map(|t| t.poses.iter().map(|p| p.translation.vector.norm()))
+            .collect();
+        (!baselines.is_empty()).then(|| crate::metrics::stats::median(&baselines))
+    }
+
     /// Loads sample `i` resized (whole frames, no augmentation) to `[height, width]` and
     /// undistorted to a pinhole image of the same intrinsics.
     pub fn load(&self, i: usize, [height, width]: [usize; 2]) -> Result<VideoSample> {

@@ -143,9 +143,20 @@ impl SegDepthData {
         let &(k, j) = self.index.get(i).ok_or_else(|| {
             Error::msg(format!("sample {i} out of range ({} samples)", self.len()))
         })?;
-        let (rgb, depth, labels) = self.sets[k].load(j)?;
+        let set = &self.sets[k];
+        // A synthetic source renders a new view each draw (from the sample's generator), with
+        // its own focal length.
+        let fresh = if set.is_synthetic() {
+            rng.next_u64()
+        } else {
+            0
+        };
+        let ((rgb, depth, labels), fx) = set.load_drawn(j, fresh)?;
         let mut sample = augment(&rgb, depth.as_ref(), &labels, width, height, aug, rng);
-        let factor = self.depth_factor(i, rgb.width(), sample.zoom);
+        let factor = match self.canonical {
+            Some(c) => to_canonical(c, fx, rgb.width() as f64, sample.zoom as f64) as f32,
+            None => 1.0,
+        };
         if factor != 1.0 {
             sample.depth.iter_mut().for_each(|d| *d *= factor);
             sample.depth_factor = factor;

@@ -50,6 +50,14 @@ pub struct DataSource {
     /// Name of the source in per-source validation metrics (`val_<name>_delta1`, ...).
     #[serde(default)]
     pub name: Option<String>,
+    /// Synthetic sources (`path` a `synth` config): the views an epoch draws, each a fresh
+    /// room rendered while training, nothing written to disk.
+    #[serde(default)]
+    pub samples: Option<usize>,
+    /// Synthetic sources: each view's focal length drawn uniformly from `[low, high]` pixels
+    /// for a 640-pixel-wide image (scaled to the config's resolution; default: its camera's).
+    #[serde(default)]
+    pub focal: Option<[f64; 2]>,
 }
 
 impl DataSource {
@@ -64,7 +72,17 @@ impl DataSource {
             every: None,
             repeat: None,
             name: None,
+            samples: None,
+            focal: None,
         }
+    }
+
+    /// Whether `path` is a `synth` config, whose views are rendered while training.
+    pub fn is_synthetic(&self) -> bool {
+        self.path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+            && self.path.is_file()
     }
 
     /// Whether `path` is a TUM RGB-D sequence folder rather than a NYU layout.
@@ -107,6 +125,27 @@ impl DataSource {
         if self.every.is_some_and(|e| e == 0 || e > MAX_FRAMES) {
             return bad("every must be at least 1".into());
         }
+        if self.samples.is_some_and(|n| n == 0 || n > MAX_FRAMES) {
+            return bad(format!("samples must be in 1..={MAX_FRAMES}"));
+        }
+        if let Some([lo, hi]) = self.focal
+            && !(lo >= 100.0 && lo <= hi && hi <= 5000.0)
+        {
+            return bad(format!(
+                "focal = [{lo}, {hi}] must be a range of focal lengths in pixels at 640 px width (100-5000)"
+            ));
+        }
+        let synthetic = self.is_synthetic();
+        if synthetic != self.samples.is_some() {
+            return bad(if synthetic {
+                "a synth config as a source needs samples = N (the views an epoch draws)".into()
+            } else {
+                "samples is for synthetic sources (path = a synth config)".into()
+            });
+        }
+        if self.focal.is_some() && !synthetic {
+            return bad("focal is for synthetic sources (path = a synth config)".into());
+        }
         if self.repeat.is_some_and(|r| r == 0 || r > MAX_REPEAT) {
             return bad(format!("repeat must be in 1..={MAX_REPEAT}"));
         }
@@ -134,6 +173,40 @@ enum Images {
     Nyu(Box<NyuDataset>),
     /// A TUM sequence's selected frames (indices into its association list).
     Tum(TumSequence, Vec<usize>),
+    /// Views rendered on demand.
+    Synth(Box<Stream>),
+}
+
+/// A synthetic source: `samples` views of fresh rooms, rendered when loaded.
+#[derive(Debug, Clone)]
+struct Stream {
+    cfg: crate::synth::SynthConfig,
+    camera: Camera,
+    samples: usize,
+    focal: Option<[f64; 2]>,
+}
+
+impl Stream {
+    /// View `j` of the draw `fresh` (0: the same views every time, as validation needs) and
+    /// the focal length it was rendered with, pixels.
+    fn render(&self, j: usize, fresh: u64) -> Result<(SetItem, f64)> {
+        use rand::{RngExt, SeedableRng};
+        let seed = crate::synth::scene_seed(self.cfg.seed ^ fresh, j);
+        let mut camera = self.camera.clone();
+        if let Some([lo, hi]) = self.focal {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xf0ca_1000);
+            let f = rng.random_range(lo..=hi) * camera.width as f64 / 640.0;
+            camera.fx = f;
+            camera.fy = f;
+        }
+        let view = crate::synth::stream_view(&self.cfg, &camera, seed)?;
+        let labels = LabelImage {
+            width: view.labels.width(),
+            height: view.labels.height(),
+            data: view.labels.into_raw(),
+        };
+        Ok(((view.rgb, Some(view.depth), labels), camera.fx))
+    }
 }
 
 /// The images of one [`DataSource`] at their own resolution, with their camera's focal
@@ -158,7 +231,9 @@ impl Set {
     /// checking it as [`SegDepthData::open`](super::data::SegDepthData::open) does.
     pub fn open(s: &DataSource) -> Result<Self> {
         s.check()?;
-        if s.is_sequence() {
+        if s.is_synthetic() {
+            open_synth(s)
+        } else if s.is_sequence() {
             open_sequence(s)
         } else {
             open_nyu(s)
@@ -175,6 +250,7 @@ impl Set {
         match &self.images {
             Images::Nyu(d) => d.len(),
             Images::Tum(_, frames) => frames.len(),
+            Images::Synth(st) => st.samples,
         }
     }
 
@@ -182,6 +258,7 @@ impl Set {
         match &self.images {
             Images::Nyu(d) => &d.root,
             Images::Tum(s, _) => &s.root,
+            Images::Synth(_) => Path::new("synth"),
         }
     }
 
@@ -195,6 +272,7 @@ impl Set {
         match &self.images {
             Images::Nyu(d) => d.samples[j].id.clone(),
             Images::Tum(_, f) => format!("frame{:05}", f[j]),
+            Images::Synth(_) => format!("view{j:06}"),
         }
     }
 
@@ -205,13 +283,29 @@ impl Set {
                 .rgb_path
                 .file_name()
                 .map_or_else(|| format!("frame {}", f[j]), |n| n.to_string_lossy().into()),
+            Images::Synth(_) => format!("view{j:06}"),
         };
         format!("{}/{id}", self.root().display())
     }
 
-    /// RGB, depth (metres) and labels of image `j`.
+    /// RGB, depth (metres) and labels of image `j`, with the focal length it was taken with
+    /// (pixels); a synthetic source renders view `j` of the draw `fresh`.
+    pub fn load_drawn(&self, j: usize, fresh: u64) -> Result<(SetItem, f64)> {
+        match &self.images {
+            Images::Synth(st) => st.render(j, fresh),
+            _ => Ok((self.load(j)?, self.fx())),
+        }
+    }
+
+    /// Whether the images are rendered on demand (a new draw each epoch in training).
+    pub fn is_synthetic(&self) -> bool {
+        matches!(self.images, Images::Synth(_))
+    }
+
+    /// RGB, depth (metres) and labels of image `j` (a synthetic source's first draw).
     pub fn load(&self, j: usize) -> Result<SetItem> {
         match &self.images {
+            Images::Synth(st) => Ok(st.render(j, 0)?.0),
             Images::Nyu(d) => {
                 let item = d.load(j)?;
                 Ok((item.rgb, item.depth, item.labels))
@@ -330,6 +424,29 @@ fn open_sequence(s: &DataSource) -> Result<Set> {
     }
     Ok(Set {
         images: Images::Tum(seq, frames),
+        focal: Focal { fx: camera.fx },
+        name: s.name.clone(),
+    })
+}
+
+fn open_synth(s: &DataSource) -> Result<Set> {
+    if s.split.is_some() || s.frames.is_some() || s.every.is_some() || s.camera.is_some() {
+        return Err(Error::invalid(
+            &s.path,
+            "a synthetic source takes samples, focal, repeat and name (its camera is the synth config's)",
+        ));
+    }
+    let cfg = crate::synth::SynthConfig::from_file(&s.path)?;
+    cfg.validate()?;
+    let camera = cfg.camera()?;
+    let stream = Stream {
+        camera: camera.clone(),
+        cfg,
+        samples: s.samples.unwrap_or(0),
+        focal: s.focal,
+    };
+    Ok(Set {
+        images: Images::Synth(Box::new(stream)),
         focal: Focal { fx: camera.fx },
         name: s.name.clone(),
     })

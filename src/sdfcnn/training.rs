@@ -114,7 +114,11 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
                     b * 1000.0
                 );
             }
-            format!(" and {} video frames ({:.1} cm from their sources)", video.len(), b * 100.0)
+            format!(
+                " and {} video frames ({:.1} cm from their sources)",
+                video.len(),
+                b * 100.0
+            )
         }
     };
     println!(
@@ -770,6 +774,67 @@ crp_stages = 2
         assert!(
             err.contains("elsewhere.txt") && err.contains("has a pose"),
             "{err}"
+        );
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    /// A small `synth` config for streamed views.
+    fn synth_config(root: &Path) -> PathBuf {
+        let path = root.join("rooms.toml");
+        std::fs::write(&path, "seed = 5\nresolution = \"64x48\"\n").unwrap();
+        path
+    }
+
+    #[test]
+    fn synthetic_views_are_drawn_afresh_with_their_own_focal_length() {
+        use super::super::data::{DataSource, Set};
+        let root = tmp("synth_stream");
+        let mut source = DataSource::folder(synth_config(&root));
+        source.samples = Some(3);
+        source.focal = Some([400.0, 700.0]);
+        let set = Set::open(&source).expect("a synth config as a source");
+        assert_eq!(set.len(), 3);
+        let ((rgb, depth, labels), fx) = set.load_drawn(0, 1).unwrap();
+        let ((again, _, _), fx_again) = set.load_drawn(0, 1).unwrap();
+        let ((other, _, _), _) = set.load_drawn(0, 2).unwrap();
+        assert_eq!((rgb.width(), rgb.height()), (64, 48));
+        assert_eq!((labels.width, labels.height), (64, 48));
+        assert!(depth.unwrap().valid_fraction() > 0.5);
+        // The same draw is the same view; another draw another room.
+        assert!(rgb == again && fx == fx_again && rgb != other);
+        // 400-700 px at 640 px width is 40-70 px at 64.
+        assert!((40.0..=70.0).contains(&fx), "{fx}");
+        // A synth config needs `samples`; `samples` and `focal` need a synth config.
+        source.samples = None;
+        let err = Set::open(&source).unwrap_err().to_string();
+        assert!(err.contains("samples"), "{err}");
+        let mut folder = DataSource::folder("datasets/fixtures/nyuv2");
+        folder.focal = Some([400.0, 700.0]);
+        let err = Set::open(&folder).unwrap_err().to_string();
+        assert!(err.contains("focal is for synthetic sources"), "{err}");
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn training_streams_synthetic_rooms() {
+        let root = tmp("synth_train");
+        let rooms = synth_config(&root);
+        let text = tiny_config(&root, "")
+            .replace("epochs = 2", "epochs = 1")
+            .replace(
+                r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#,
+                &format!(
+                    "train = [{{ path = \"{}\", samples = 4, focal = [400, 700] }}]",
+                    rooms.display()
+                ),
+            );
+        let cfg_path = root.join("c.toml");
+        std::fs::write(&cfg_path, &text).unwrap();
+        run(&cfg_path, &text, &quiet()).expect("streamed training");
+        let loss = losses(&root);
+        assert!(
+            loss.iter().all(|v| v.is_finite()) && loss[0] > 0.0,
+            "{loss:?}"
         );
         std::fs::remove_dir_all(&root).ok();
     }

@@ -307,6 +307,60 @@ struct SceneJob<'a> {
     progress: &'a (dyn Fn(u64) + Sync),
 }
 
+/// A training view as the NYU layout holds it: colour with the sensor's colour model, exact
+/// depth (no sensor simulation) and labels. `time` varies the exposure.
+fn view_files(
+    renderer: &Renderer,
+    cfg: &SynthConfig,
+    pose: &Pose,
+    nseed: u32,
+    time: f64,
+) -> FrameFiles {
+    let r = renderer.render(pose);
+    let rgb: Vec<[f32; 3]> = r.px.iter().map(|p| p.rgb).collect();
+    let gain = sensor::auto_exposure(&rgb) * sensor::exposure_gain(&cfg.sensor, nseed, time);
+    FrameFiles {
+        rgb: sensor::color_image(
+            &rgb,
+            r.width,
+            r.height,
+            gain,
+            &cfg.render,
+            &cfg.sensor,
+            nseed,
+        ),
+        depth: sensor::exact_depth(&r),
+        depth_gt: None,
+        labels: sensor::label_image(&r),
+        color_labels: false,
+    }
+}
+
+/// Attempts at a room with a valid random view before [`stream_view`] gives up.
+const STREAM_ATTEMPTS: usize = 8;
+
+/// One training view without the disk (training streams them: a synth config as a `[data]
+/// train` source's `path`): a fresh room from `seed` seen by `camera` (e.g. with a random
+/// focal length), one random view of it, rendered as [`generate`]'s NYU-layout views are. A
+/// room without a valid view is replaced by the next seed's.
+pub fn stream_view(cfg: &SynthConfig, camera: &Camera, seed: u64) -> Result<FrameFiles> {
+    let mut last = None;
+    for attempt in 0..STREAM_ATTEMPTS {
+        let seed = scene_seed(seed, attempt);
+        let scene = Scene::generate(&cfg.room, seed)?;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x7a11_ec70_9e5e_ed00);
+        match trajectory::random_view(&scene, camera, &cfg.motion, &mut rng) {
+            Ok(pose) => {
+                let renderer = Renderer::new(&scene, camera, &cfg.render);
+                let time = (seed % 1000) as f64;
+                return Ok(view_files(&renderer, cfg, &pose, seed as u32, time));
+            }
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| Error::msg("no room with a valid view")))
+}
+
 /// The room's TUM-layout sequence `seq_NNN/` (frames, lists, ground truth, camera,
 /// `scene.json`); its facts go into `info`. Returns the label histogram of its frames.
 fn write_sequence(job: &SceneJob, rng: &mut ChaCha8Rng, info: &mut Value) -> Result<Histogram> {
@@ -402,28 +456,11 @@ fn write_nyu_views(job: &SceneJob, views: usize, rng: &mut ChaCha8Rng) -> Result
         let rendered: Vec<(usize, FrameFiles)> = chunk
             .iter()
             .map(|&v| {
-                let r = renderer.render(&poses[v]);
-                let rgb: Vec<[f32; 3]> = r.px.iter().map(|p| p.rgb).collect();
                 let nseed = (seed as u32) ^ 0x0e1a_0000 ^ (v as u32).wrapping_mul(7919);
-                let gain = sensor::auto_exposure(&rgb)
-                    * sensor::exposure_gain(&cfg.sensor, nseed, v as f64 * 3.7);
-                // Training views: exact depth, no sensor simulation.
-                let f = FrameFiles {
-                    rgb: sensor::color_image(
-                        &rgb,
-                        r.width,
-                        r.height,
-                        gain,
-                        &cfg.render,
-                        &cfg.sensor,
-                        nseed,
-                    ),
-                    depth: sensor::exact_depth(&r),
-                    depth_gt: None,
-                    labels: sensor::label_image(&r),
-                    color_labels: false,
-                };
-                (v, f)
+                (
+                    v,
+                    view_files(renderer, cfg, &poses[v], nseed, v as f64 * 3.7),
+                )
             })
             .collect();
         for (_, f) in &rendered {

@@ -121,7 +121,8 @@ impl SegDepthData {
     }
 
     /// The factor from metric depth to the target depth of sample `i` at `zoom` (1 without a
-    /// canonical focal length).
+    /// canonical focal length), for its source's camera (a synthetic source with `focal`
+    /// draws each view's own, which [`Self::load`] uses).
     pub fn depth_factor(&self, i: usize, width: u32, zoom: f32) -> f32 {
         match (self.canonical, self.index.get(i)) {
             (Some(c), Some(&(k, _))) => {

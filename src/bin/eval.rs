@@ -14,6 +14,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
+use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
 use sdf_slam::metrics::{self, Alignment, DeltaUnit, PoseError, Stats};
 use sdf_slam::nn::BackendKind;
 use sdf_slam::plot;
@@ -306,32 +307,9 @@ fn relative_stamps(t: &Trajectory) -> Vec<f64> {
     t.stamps.iter().map(|s| s - t0).collect()
 }
 
-fn matching(a: MatchingArgs) -> Result<()> {
-    use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown, per_pair_markdown};
-    use sdf_slam::fpfdcnn::{DetectorConfig, FpfdcnnDetector};
-    // A backend not compiled in, or without a device, fails before any data is read.
-    a.backend.check()?;
-    anyhow::ensure!(
-        a.ratio > 0.0 && a.ratio.is_finite(),
-        "--ratio must be a positive number (1 turns the test off), got {}",
-        a.ratio
-    );
-    anyhow::ensure!(
-        (1..=sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS).contains(&a.keypoints),
-        "--keypoints must be in [1, {}], got {}",
-        sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS,
-        a.keypoints
-    );
-    anyhow::ensure!(
-        (0.0..=256.0).contains(&a.ratio_exclusion),
-        "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
-        a.ratio_exclusion
-    );
-    anyhow::ensure!(
-        (-180.0..=180.0).contains(&a.roll),
-        "--roll must be in [-180, 180] degrees, got {}",
-        a.roll
-    );
+/// The `--derotate` threshold, degrees: the flag's value, else off with
+/// `--window-at-keypoint` (no motion estimate) and the library's default otherwise.
+fn derotation_deg(a: &MatchingArgs) -> Result<f64> {
     let derotate = match (a.derotate, a.window_at_keypoint) {
         (Some(d), true) if d != 0.0 => anyhow::bail!(
             "--derotate needs the global motion estimate: leave out --window-at-keypoint"
@@ -344,15 +322,13 @@ fn matching(a: MatchingArgs) -> Result<()> {
         (0.0..=180.0).contains(&derotate),
         "--derotate must be in [0, 180] degrees (0: off), got {derotate}"
     );
-    let adaptation =
-        (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
-            warps: a.adapted_harris,
-            ..Default::default()
-        });
-    if let Some(ad) = &adaptation {
-        ad.validate()
-            .map_err(|m| anyhow::anyhow!("--adapted-harris: {m}"))?;
-    }
+    Ok(derotate)
+}
+
+/// Match refinement as the `--refine-*` flags set it; `None` with `--no-match-refinement`.
+fn match_refinement(
+    a: &MatchingArgs,
+) -> Result<Option<sdf_slam::features::match_refine::MatchRefineConfig>> {
     let refine = sdf_slam::features::match_refine::MatchRefineConfig {
         patch_radius: a.refine_patch_radius,
         search_px: a.refine_search,
@@ -376,9 +352,12 @@ fn matching(a: MatchingArgs) -> Result<()> {
         })?;
         Some(refine)
     };
-    let cam = sdf_slam::camera::Camera::for_sequence(a.camera.as_deref(), &a.sequence)?;
-    // Every frame checked against the camera where it is read (size, channels, bit depth).
-    let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?.with_camera(&cam);
+    Ok(refine)
+}
+
+/// The FPFDCNN weights to evaluate (`None` with `--orb-only`, or when none are given and
+/// none are bundled) and the detector loaded from them.
+fn fpfdcnn_detector(a: &MatchingArgs) -> Result<(Option<PathBuf>, Option<FpfdcnnDetector>)> {
     let weights = match (&a.fpfdcnn, a.orb_only) {
         (_, true) => None,
         (Some(p), _) => Some(p.clone()),
@@ -410,6 +389,49 @@ fn matching(a: MatchingArgs) -> Result<()> {
             FpfdcnnDetector::load(p, a.backend, cfg)
         })
         .transpose()?;
+    Ok((weights, detector))
+}
+
+fn matching(a: MatchingArgs) -> Result<()> {
+    use sdf_slam::fpfdcnn::evaluate::{MatchingEvalConfig, evaluate, markdown, per_pair_markdown};
+    // A backend not compiled in, or without a device, fails before any data is read.
+    a.backend.check()?;
+    anyhow::ensure!(
+        a.ratio > 0.0 && a.ratio.is_finite(),
+        "--ratio must be a positive number (1 turns the test off), got {}",
+        a.ratio
+    );
+    anyhow::ensure!(
+        (1..=sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS).contains(&a.keypoints),
+        "--keypoints must be in [1, {}], got {}",
+        sdf_slam::fpfdcnn::inference::MAX_KEYPOINTS,
+        a.keypoints
+    );
+    anyhow::ensure!(
+        (0.0..=256.0).contains(&a.ratio_exclusion),
+        "--ratio-exclusion must be in [0, 256] pixels (0: Lowe's test as it is), got {}",
+        a.ratio_exclusion
+    );
+    anyhow::ensure!(
+        (-180.0..=180.0).contains(&a.roll),
+        "--roll must be in [-180, 180] degrees, got {}",
+        a.roll
+    );
+    let derotate = derotation_deg(&a)?;
+    let adaptation =
+        (a.adapted_harris > 0).then(|| sdf_slam::fpfdcnn::adaptation::AdaptationConfig {
+            warps: a.adapted_harris,
+            ..Default::default()
+        });
+    if let Some(ad) = &adaptation {
+        ad.validate()
+            .map_err(|m| anyhow::anyhow!("--adapted-harris: {m}"))?;
+    }
+    let refine = match_refinement(&a)?;
+    let cam = sdf_slam::camera::Camera::for_sequence(a.camera.as_deref(), &a.sequence)?;
+    // Every frame checked against the camera where it is read (size, channels, bit depth).
+    let seq = sdf_slam::dataset::TumSequence::open(&a.sequence)?.with_camera(&cam);
+    let (weights, detector) = fpfdcnn_detector(&a)?;
     let mut cfg = MatchingEvalConfig {
         gap: a.gap,
         pairs: a.pairs,

@@ -404,21 +404,24 @@ impl Slam {
         // not copy them.
         drop(run.tracker);
         out.scale = scale::anchor_scale(&mut out, &config, &scale_ratios);
-        for w in &out.scale.warnings {
-            (control.log)(&format!("warning: {w}"));
-        }
-        if let Some(s) = out.scale.applied {
-            (control.log)(&format!(
-                "scale: the floor is {:.3} map units below the cameras; the camera height \
-                 {:.3} m scales the map by {s:.3}",
-                out.scale
-                    .floor
-                    .as_ref()
-                    .map_or(f64::NAN, |f| f.camera_height),
-                config.scale.camera_height
-            ));
-        }
+        log_scale(&out.scale, config.scale.camera_height, &control.log);
         Ok(out)
+    }
+}
+
+/// Logs what anchoring the scale found: its warnings, then the rescaling if one was applied
+/// (`camera_height`: the configured camera height, metres).
+fn log_scale(report: &scale::ScaleReport, camera_height: f64, log: &Log) {
+    for w in &report.warnings {
+        log(&format!("warning: {w}"));
+    }
+    if let Some(s) = report.applied {
+        log(&format!(
+            "scale: the floor is {:.3} map units below the cameras; the camera height \
+             {:.3} m scales the map by {s:.3}",
+            report.floor.as_ref().map_or(f64::NAN, |f| f.camera_height),
+            camera_height
+        ));
     }
 }
 

@@ -94,8 +94,12 @@ pub struct StageReport {
     pub seconds: f64,
     /// Times the stage ran.
     pub calls: usize,
-    /// Calls per second of stage time.
+    /// Calls per second of stage time: the rate the stage alone could sustain.
     pub per_second: f64,
+    /// The stage's share of the CPU time the run had: its seconds over the run's wall time
+    /// times the cores (a stage that kept one of two cores busy all run: 0.5).
+    #[serde(default)]
+    pub cpu_share: f64,
 }
 
 /// Tracking trouble.
@@ -283,17 +287,21 @@ impl Report {
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
-            timing: out
-                .timings
-                .stages()
-                .iter()
-                .map(|(name, s)| StageReport {
-                    stage: name.to_string(),
-                    seconds: s.seconds,
-                    calls: s.calls,
-                    per_second: s.rate(),
-                })
-                .collect(),
+            timing: {
+                let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+                let cpu = out.wall_seconds * cores as f64;
+                out.timings
+                    .stages()
+                    .iter()
+                    .map(|(name, s)| StageReport {
+                        stage: name.to_string(),
+                        seconds: s.seconds,
+                        calls: s.calls,
+                        per_second: s.rate(),
+                        cpu_share: if cpu > 0.0 { s.seconds / cpu } else { 0.0 },
+                    })
+                    .collect()
+            },
             ate: trajectory.ate,
             ate_unaligned: trajectory.ate_unaligned,
             ate_note: trajectory.ate_note,
@@ -536,15 +544,24 @@ impl Report {
     fn markdown_details(&self, s: &mut String) {
         let _ = writeln!(
             s,
-            "\n## Timing\n\n| stage | seconds | calls | per second |\n|---|---|---|---|"
+            "\n## Timing\n\n| stage | seconds | calls | per second | CPU share |\n|---|---|---|---|---|"
         );
         for t in &self.timing {
             let _ = writeln!(
                 s,
-                "| {} | {:.2} | {} | {:.2} |",
-                t.stage, t.seconds, t.calls, t.per_second
+                "| {} | {:.2} | {} | {:.2} | {:.1} % |",
+                t.stage,
+                t.seconds,
+                t.calls,
+                t.per_second,
+                100.0 * t.cpu_share
             );
         }
+        let _ = writeln!(
+            s,
+            "\nPer second: calls per second of the stage's own time, the rate it alone could \
+             sustain. CPU share: its time over the run's wall time times the machine's cores."
+        );
         if self.feature_workers > 1 {
             let _ = writeln!(
                 s,

@@ -22,11 +22,11 @@ pub const BUNDLED_SDFCNN: &str = "weights/sdfcnn";
 
 /// Frames of the default sequence: 8 s at 30 Hz, about one period of the
 /// hand-held sweep, so the camera comes back near its start.
-pub const DEFAULT_SEQUENCE_FRAMES: usize = 240;
+pub(crate) const DEFAULT_SEQUENCE_FRAMES: usize = 240;
 
 /// The folders a crate-relative path is looked up in, in order: the current
 /// directory, then the crate's source folder.
-pub fn search_roots() -> Vec<PathBuf> {
+pub(crate) fn search_roots() -> Vec<PathBuf> {
     let mut roots = vec![PathBuf::from(".")];
     let manifest = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     if manifest.is_dir() {
@@ -36,12 +36,16 @@ pub fn search_roots() -> Vec<PathBuf> {
 }
 
 /// `rel` under the first of `roots` where `accept` holds.
-pub fn find_in(roots: &[PathBuf], rel: &str, accept: impl Fn(&Path) -> bool) -> Option<PathBuf> {
+pub(crate) fn find_in(
+    roots: &[PathBuf],
+    rel: &str,
+    accept: impl Fn(&Path) -> bool,
+) -> Option<PathBuf> {
     roots.iter().map(|r| r.join(rel)).find(|p| accept(p))
 }
 
 /// A checkpoint folder holding both `model.bpk` and `config.toml`.
-pub fn is_checkpoint_folder(dir: &Path) -> bool {
+pub(crate) fn is_checkpoint_folder(dir: &Path) -> bool {
     dir.join("model.bpk").is_file() && dir.join("config.toml").is_file()
 }
 
@@ -79,7 +83,7 @@ fn tidy(p: &Path) -> PathBuf {
 }
 
 /// The synthetic generator's configuration of the default sequence: one room
-/// (seed 1), a hand-held sweep of [`DEFAULT_SEQUENCE_FRAMES`] frames at
+/// (seed 1), a hand-held sweep of `DEFAULT_SEQUENCE_FRAMES` frames at
 /// 640x480 with the TUM fr1 camera, Kinect-like sensor depth, exact depth and
 /// NYU40 labels; no NYU-layout training images.
 pub fn default_sequence_config() -> SynthConfig {

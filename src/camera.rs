@@ -10,11 +10,11 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Largest image side a camera may describe: buffers per pixel are allocated from it.
-pub const MAX_SIDE: u32 = 16384;
+pub(crate) const MAX_SIDE: u32 = 16384;
 
 /// Focal lengths a camera may have: `fx` in image widths, `fy` in image heights (TUM's
 /// cameras: 0.81; 0.1 is a field of view of 157°, 100 one of 0.6°).
-pub const FOCAL_RANGE: (f64, f64) = (0.1, 100.0);
+pub(crate) const FOCAL_RANGE: (f64, f64) = (0.1, 100.0);
 
 /// Brown-Conrady lens distortion coefficients (OpenCV order k1, k2, p1, p2, k3).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
@@ -224,9 +224,9 @@ impl Camera {
     /// Checks that the camera can be a real one (what reading a camera file or a registration
     /// checks, and what every preset passes); the message names the field:
     ///
-    /// * every number finite; `width` and `height` 1 to [`MAX_SIDE`];
+    /// * every number finite; `width` and `height` 1 to `MAX_SIDE`;
     /// * `fx` between 0.1 and 100 image widths and `fy` between 0.1 and 100 image heights
-    ///   ([`FOCAL_RANGE`]: fields of view from 157° down to 0.6°; TUM's cameras have 0.81);
+    ///   (`FOCAL_RANGE`: fields of view from 157° down to 0.6°; TUM's cameras have 0.81);
     /// * the principal point (`cx`, `cy`) inside the image;
     /// * a distortion that keeps the image in one piece: the radial distortion
     ///   `r_d(r) = r (1 + k1 r² + k2 r⁴ + k3 r⁶)` increasing from the centre until it reaches

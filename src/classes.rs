@@ -54,7 +54,7 @@ pub const NYU40: [&str; NUM_CLASSES] = [
 ];
 
 /// Display colour of each class (ScanNet NYU40 palette), indexed by the 0-based label.
-pub const PALETTE: [[u8; 3]; NUM_CLASSES] = [
+pub(crate) const PALETTE: [[u8; 3]; NUM_CLASSES] = [
     [174, 199, 232], // wall
     [152, 223, 138], // floor
     [31, 119, 180],  // cabinet
@@ -105,79 +105,79 @@ pub mod label {
     /// Label 2: "cabinet".
     pub const CABINET: u8 = 2;
     /// Label 3: "bed".
-    pub const BED: u8 = 3;
+    pub(crate) const BED: u8 = 3;
     /// Label 4: "chair".
-    pub const CHAIR: u8 = 4;
+    pub(crate) const CHAIR: u8 = 4;
     /// Label 5: "sofa".
-    pub const SOFA: u8 = 5;
+    pub(crate) const SOFA: u8 = 5;
     /// Label 6: "table".
-    pub const TABLE: u8 = 6;
+    pub(crate) const TABLE: u8 = 6;
     /// Label 7: "door".
-    pub const DOOR: u8 = 7;
+    pub(crate) const DOOR: u8 = 7;
     /// Label 8: "window".
     pub const WINDOW: u8 = 8;
     /// Label 9: "bookshelf".
-    pub const BOOKSHELF: u8 = 9;
+    pub(crate) const BOOKSHELF: u8 = 9;
     /// Label 10: "picture".
     pub const PICTURE: u8 = 10;
     /// Label 11: "counter".
-    pub const COUNTER: u8 = 11;
+    pub(crate) const COUNTER: u8 = 11;
     /// Label 12: "blinds".
-    pub const BLINDS: u8 = 12;
+    pub(crate) const BLINDS: u8 = 12;
     /// Label 13: "desk".
-    pub const DESK: u8 = 13;
+    pub(crate) const DESK: u8 = 13;
     /// Label 14: "shelves".
-    pub const SHELVES: u8 = 14;
+    pub(crate) const SHELVES: u8 = 14;
     /// Label 15: "curtain".
-    pub const CURTAIN: u8 = 15;
+    pub(crate) const CURTAIN: u8 = 15;
     /// Label 16: "dresser".
-    pub const DRESSER: u8 = 16;
+    pub(crate) const DRESSER: u8 = 16;
     /// Label 17: "pillow".
-    pub const PILLOW: u8 = 17;
+    pub(crate) const PILLOW: u8 = 17;
     /// Label 18: "mirror".
-    pub const MIRROR: u8 = 18;
+    pub(crate) const MIRROR: u8 = 18;
     /// Label 19: "floor mat".
-    pub const FLOOR_MAT: u8 = 19;
+    pub(crate) const FLOOR_MAT: u8 = 19;
     /// Label 20: "clothes".
-    pub const CLOTHES: u8 = 20;
+    pub(crate) const CLOTHES: u8 = 20;
     /// Label 21: "ceiling".
     pub const CEILING: u8 = 21;
     /// Label 22: "books".
-    pub const BOOKS: u8 = 22;
+    pub(crate) const BOOKS: u8 = 22;
     /// Label 23: "refridgerator".
-    pub const REFRIGERATOR: u8 = 23;
+    pub(crate) const REFRIGERATOR: u8 = 23;
     /// Label 24: "television".
-    pub const TELEVISION: u8 = 24;
+    pub(crate) const TELEVISION: u8 = 24;
     /// Label 25: "paper".
-    pub const PAPER: u8 = 25;
+    pub(crate) const PAPER: u8 = 25;
     /// Label 26: "towel".
     pub const TOWEL: u8 = 26;
     /// Label 27: "shower curtain".
     pub const SHOWER_CURTAIN: u8 = 27;
     /// Label 28: "box".
-    pub const BOX: u8 = 28;
+    pub(crate) const BOX: u8 = 28;
     /// Label 29: "whiteboard".
-    pub const WHITEBOARD: u8 = 29;
+    pub(crate) const WHITEBOARD: u8 = 29;
     /// Label 30: "person".
     pub const PERSON: u8 = 30;
     /// Label 31: "night stand".
-    pub const NIGHT_STAND: u8 = 31;
+    pub(crate) const NIGHT_STAND: u8 = 31;
     /// Label 32: "toilet".
     pub const TOILET: u8 = 32;
     /// Label 33: "sink".
-    pub const SINK: u8 = 33;
+    pub(crate) const SINK: u8 = 33;
     /// Label 34: "lamp".
-    pub const LAMP: u8 = 34;
+    pub(crate) const LAMP: u8 = 34;
     /// Label 35: "bathtub".
     pub const BATHTUB: u8 = 35;
     /// Label 36: "bag".
-    pub const BAG: u8 = 36;
+    pub(crate) const BAG: u8 = 36;
     /// Label 37: "otherstructure".
-    pub const OTHER_STRUCTURE: u8 = 37;
+    pub(crate) const OTHER_STRUCTURE: u8 = 37;
     /// Label 38: "otherfurniture".
-    pub const OTHER_FURNITURE: u8 = 38;
+    pub(crate) const OTHER_FURNITURE: u8 = 38;
     /// Label 39: "otherprop".
-    pub const OTHER_PROP: u8 = 39;
+    pub(crate) const OTHER_PROP: u8 = 39;
 }
 
 /// Name of a label (`"void"` for [`VOID`], `None` for other values past 39).
@@ -189,10 +189,10 @@ pub fn name(label: u8) -> Option<&'static str> {
 }
 
 /// Display colour of void and of values past the 40 classes.
-pub const VOID_COLOR: [u8; 3] = [0, 0, 0];
+pub(crate) const VOID_COLOR: [u8; 3] = [0, 0, 0];
 
 /// Display colour of a label ([`VOID_COLOR`] for void and out-of-range values).
-pub fn colorize(label: u8) -> [u8; 3] {
+pub(crate) fn colorize(label: u8) -> [u8; 3] {
     PALETTE.get(label as usize).copied().unwrap_or(VOID_COLOR)
 }
 
@@ -202,7 +202,7 @@ pub fn display_name(label: u8) -> String {
 }
 
 /// Colourises a label image with [`PALETTE`].
-pub fn colorize_image(labels: &image::GrayImage) -> image::RgbImage {
+pub(crate) fn colorize_image(labels: &image::GrayImage) -> image::RgbImage {
     image::RgbImage::from_fn(labels.width(), labels.height(), |x, y| {
         image::Rgb(colorize(labels.get_pixel(x, y).0[0]))
     })

@@ -1,6 +1,6 @@
 //! One error type for the whole crate: every message names the file (and line or
 //! frame) it is about, so a user can fix their input without reading our code. A path
-//! thousands of characters long is shown shortened ([`crate::io::short_path`]).
+//! thousands of characters long is shown shortened (`crate::io::short_path`).
 
 use std::path::{Path, PathBuf};
 

@@ -10,7 +10,7 @@ pub type Pose = Isometry3<f64>;
 
 /// Builds a pose from TUM fields (`tx ty tz`, `qx qy qz qw`). The quaternion is
 /// normalised; `None` when any value is not finite or the quaternion is zero.
-pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
+pub(crate) fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
     if t.iter().chain(q_xyzw.iter()).any(|v| !v.is_finite()) {
         return None;
     }
@@ -32,7 +32,7 @@ pub fn pose_from_tum(t: [f64; 3], q_xyzw: [f64; 4]) -> Option<Pose> {
 /// `Rotation3::from_matrix`, which iterates until an update falls below machine epsilon,
 /// which rounding can prevent: it never returned on one sum of 25 keyframe rotations
 /// (7-Scenes, 2026-11-29).
-pub fn nearest_rotation(m: &Matrix3<f64>, min_ratio: f64) -> Option<Rotation3<f64>> {
+pub(crate) fn nearest_rotation(m: &Matrix3<f64>, min_ratio: f64) -> Option<Rotation3<f64>> {
     if !m.iter().all(|v| v.is_finite()) {
         return None;
     }
@@ -63,7 +63,7 @@ pub fn pose_to_tum(pose: &Pose) -> ([f64; 3], [f64; 4]) {
 /// next one (the constant-velocity prediction `T_k T_{k-1}⁻¹ T_k` seeding PnP),
 /// the norm error grows by about 2.4x per frame and a non-unit quaternion
 /// rotates *and scales* points.
-pub fn renormalized(pose: &Pose) -> Pose {
+pub(crate) fn renormalized(pose: &Pose) -> Pose {
     Pose::from_parts(
         pose.translation,
         UnitQuaternion::new_normalize(pose.rotation.into_inner()),
@@ -95,7 +95,7 @@ pub fn rotation_angle(r: &UnitQuaternion<f64>) -> f64 {
 
 /// Two unit vectors spanning the plane orthogonal to unit vector `n`, so that `(e1, e2, n)`
 /// is right-handed up to the order (`e1 = n × helper`, `e2 = n × e1`).
-pub fn orthonormal_basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+pub(crate) fn orthonormal_basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let helper = if n.x.abs() < 0.9 {
         Vector3::x()
     } else {

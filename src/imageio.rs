@@ -1,8 +1,8 @@
 //! Image reading and atomic PNG writing with errors that name the file.
 //!
 //! Every image input is read here ([`decode`]): a regular file of bounded size
-//! ([`crate::io::read_image_bytes`]: a FIFO or device is refused, never waited on), its header
-//! checked (sides of at most [`MAX_SIDE`], and what the caller expects of it, e.g. a frame's
+//! (`crate::io::read_image_bytes`: a FIFO or device is refused, never waited on), its header
+//! checked (sides of at most `MAX_SIDE`, and what the caller expects of it, e.g. a frame's
 //! size and bit depth: [`crate::dataset::FrameSpec`]) before any pixel is decoded.
 
 use crate::camera::MAX_SIDE;
@@ -49,7 +49,7 @@ impl ImageHeader {
 }
 
 /// The image's sides checked against [`MAX_SIDE`] (buffers are allocated from them).
-pub fn check_sides(path: &Path, width: u32, height: u32) -> Result<()> {
+pub(crate) fn check_sides(path: &Path, width: u32, height: u32) -> Result<()> {
     if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
         return Err(Error::invalid(
             path,
@@ -67,8 +67,8 @@ fn decode_error(path: &Path, e: image::ImageError) -> Error {
 }
 
 /// Decodes an image file: read whole with at most `max_bytes` bytes (and never more than
-/// [`crate::io::MAX_IMAGE_BYTES`]), the format taken from the content, its header checked by
-/// [`check_sides`] and by `check` before any pixel is decoded (at most 512 MiB decoded).
+/// `crate::io::MAX_IMAGE_BYTES`), the format taken from the content, its header checked by
+/// `check_sides` and by `check` before any pixel is decoded (at most 512 MiB decoded).
 pub fn decode(
     path: &Path,
     max_bytes: u64,
@@ -105,7 +105,7 @@ pub fn header(path: impl AsRef<Path>) -> Result<ImageHeader> {
 }
 
 /// No check beyond [`decode`]'s own.
-pub fn any_image(_: &ImageHeader) -> Result<()> {
+pub(crate) fn any_image(_: &ImageHeader) -> Result<()> {
     Ok(())
 }
 

@@ -5,22 +5,22 @@
 //! # Input bounds
 //!
 //! Every text input (configs, camera files, sequence tables, trajectories, split lists, CSV
-//! tables) is read by [`read_text`], every image by [`read_image_bytes`] (through
+//! tables) is read by [`read_text`], every image by `read_image_bytes` (through
 //! [`crate::imageio`]). Both refuse what is not a regular file (a FIFO, a device such as
 //! `/dev/zero`, a socket, a directory) before opening it for reading, so an input can neither
 //! block a run forever nor stream into memory without end, and both refuse a file larger than a
 //! bound far above any real dataset's:
 //!
-//! * text files: at most [`MAX_TEXT_BYTES`] (64 MiB) and lines of at most [`MAX_LINE_BYTES`]
+//! * text files: at most `MAX_TEXT_BYTES` (64 MiB) and lines of at most `MAX_LINE_BYTES`
 //!   (64 KiB). The largest text file of the datasets read here is a ground-truth trajectory:
 //!   TUM RGB-D's largest `groundtruth.txt` is a few MB (100 Hz motion capture for a few
 //!   minutes), a 7-Scenes `pose.txt` is 200 bytes, NYUv2's split lists a few kB; 64 MiB holds
 //!   a 100 Hz trajectory of about two hours, or the tables of a million-frame sequence (the
-//!   most a sequence may have: [`crate::dataset::tum::MAX_SEQUENCE_FRAMES`]). The bound also
+//!   most a sequence may have: `crate::dataset::tum::MAX_SEQUENCE_FRAMES`). The bound also
 //!   bounds what parsing allocates: a file of 64 MiB of the shortest possible trajectory lines
 //!   parses into 4 million poses, 270 MB. Real lines are under 200 bytes (a TUM line is a
 //!   stamp, a path and a few numbers; config lines are one setting).
-//! * image files: at most [`MAX_IMAGE_BYTES`] (256 MiB). A 640x480 colour PNG of TUM RGB-D or
+//! * image files: at most `MAX_IMAGE_BYTES` (256 MiB). A 640x480 colour PNG of TUM RGB-D or
 //!   7-Scenes is about 0.5 MB, its 16-bit depth PNG about 0.2 MB; an uncompressed 8-bit RGB
 //!   image of 8192x8192 pixels is 192 MiB.
 //!
@@ -32,19 +32,19 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Largest text file read (module docs: far above any real dataset's).
-pub const MAX_TEXT_BYTES: u64 = 64 << 20;
+pub(crate) const MAX_TEXT_BYTES: u64 = 64 << 20;
 
 /// Longest line of a text file read (module docs).
-pub const MAX_LINE_BYTES: usize = 64 << 10;
+pub(crate) const MAX_LINE_BYTES: usize = 64 << 10;
 
 /// Largest image file read (module docs).
-pub const MAX_IMAGE_BYTES: u64 = 256 << 20;
+pub(crate) const MAX_IMAGE_BYTES: u64 = 256 << 20;
 
 /// Characters kept at each end of a path or value quoted in a message by [`short`].
-pub const QUOTE_KEEP: usize = 100;
+pub(crate) const QUOTE_KEEP: usize = 100;
 
 /// A path or value as quoted in a message, warning or report: whole when it is at most
-/// `2 * QUOTE_KEEP + 20` characters long, else its first and last [`QUOTE_KEEP`] characters
+/// `2 * QUOTE_KEEP + 20` characters long, else its first and last `QUOTE_KEEP` characters
 /// around `...(N characters)...`, so that a path of a megabyte read from a table cannot
 /// swell a message, `report.md` or `report.json`.
 pub fn short(s: &str) -> String {
@@ -60,7 +60,7 @@ pub fn short(s: &str) -> String {
 /// The 1-based line where TOML `text` sets `dotted` (`section.key`, the section possibly
 /// dotted itself): the first `key = ...` under `[section]`. `None` when it is not written
 /// there (a default, or an inline table).
-pub fn toml_key_line(text: &str, dotted: &str) -> Option<usize> {
+pub(crate) fn toml_key_line(text: &str, dotted: &str) -> Option<usize> {
     let (section, key) = dotted.rsplit_once('.')?;
     let mut current = "";
     for (i, line) in text.lines().enumerate() {
@@ -94,7 +94,7 @@ pub fn toml_key_line(text: &str, dotted: &str) -> Option<usize> {
 
 /// The line of the first `section.key` that `message` names and `text` sets
 /// ([`toml_key_line`]), so a range error can point at the line to fix.
-pub fn message_key_line(text: &str, message: &str) -> Option<usize> {
+pub(crate) fn message_key_line(text: &str, message: &str) -> Option<usize> {
     message
         .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '.'))
         .filter(|w| w.contains('.') && w.starts_with(|c: char| c.is_ascii_lowercase()))
@@ -103,7 +103,7 @@ pub fn message_key_line(text: &str, message: &str) -> Option<usize> {
 
 /// A configuration's range error: at the line that sets the key the message names, else at
 /// the file.
-pub fn config_error(path: &Path, text: &str, message: String) -> Error {
+pub(crate) fn config_error(path: &Path, text: &str, message: String) -> Error {
     match message_key_line(text, &message) {
         Some(line) => Error::parse(path, line, message),
         None => Error::invalid(path, message),
@@ -111,7 +111,7 @@ pub fn config_error(path: &Path, text: &str, message: String) -> Error {
 }
 
 /// [`short`] of a path as displayed.
-pub fn short_path(path: &Path) -> String {
+pub(crate) fn short_path(path: &Path) -> String {
     short(&path.display().to_string())
 }
 
@@ -157,7 +157,7 @@ fn not_regular(path: &Path, what: &str, kind: &str) -> Error {
 /// for reading blocks until a writer comes); on Linux the file is also opened non-blocking
 /// and checked again once open, so a FIFO swapped in between cannot block either. `what`
 /// names the input in the message ("camera file", "image").
-pub fn open_regular(path: &Path, what: &str) -> Result<(std::fs::File, u64)> {
+pub(crate) fn open_regular(path: &Path, what: &str) -> Result<(std::fs::File, u64)> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if let Some(kind) = special_kind(&meta.file_type()) {
         return Err(not_regular(path, what, kind));
@@ -180,7 +180,7 @@ pub fn open_regular(path: &Path, what: &str) -> Result<(std::fs::File, u64)> {
 /// Reads a whole regular file ([`open_regular`]) of at most `max` bytes; a longer one is an
 /// error naming the file, its size and the bound, and nothing beyond `max + 1` bytes is read
 /// (the length on disk may change or lie, as `/proc` files' does).
-pub fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
+pub(crate) fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
     let (file, len) = open_regular(path, what)?;
     let too_large = |size: String| {
         Error::invalid(
@@ -210,12 +210,12 @@ pub fn read_bounded(path: &Path, max: u64, what: &str) -> Result<Vec<u8>> {
 
 /// Reads an image file's bytes: a regular file of at most `max` bytes ([`MAX_IMAGE_BYTES`]
 /// unless the caller knows a tighter bound).
-pub fn read_image_bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
+pub(crate) fn read_image_bytes(path: &Path, max: u64) -> Result<Vec<u8>> {
     read_bounded(path, max.min(MAX_IMAGE_BYTES), "an image")
 }
 
 /// Reads a whole text file, naming it in the error: a regular file of at most
-/// [`MAX_TEXT_BYTES`], lines of at most [`MAX_LINE_BYTES`], UTF-8 (module docs).
+/// `MAX_TEXT_BYTES`, lines of at most `MAX_LINE_BYTES`, UTF-8 (module docs).
 pub fn read_text(path: impl AsRef<Path>) -> Result<String> {
     let path = path.as_ref();
     let bytes = read_bounded(path, MAX_TEXT_BYTES, "a text file")?;
@@ -261,13 +261,13 @@ fn check_lines(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Writes a file atomically: the content goes to a temporary sibling unique to this write
-/// ([`temp_path`]), is flushed to disk, then renamed over `path`.
+/// (`temp_path`), is flushed to disk, then renamed over `path`.
 pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes))
 }
 
 /// Like [`write_atomic`], with the content produced by a writer callback.
-pub fn write_atomic_with(
+pub(crate) fn write_atomic_with(
     path: impl AsRef<Path>,
     fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
 ) -> Result<()> {
@@ -295,7 +295,7 @@ pub fn write_atomic_with(
 /// power cut the folder holds either the old file or the new one. Directories cannot be
 /// opened as files on every platform, and some file systems refuse to flush one (the
 /// file itself is already on disk then); there it does nothing.
-pub fn sync_parent(path: &Path) -> std::io::Result<()> {
+pub(crate) fn sync_parent(path: &Path) -> std::io::Result<()> {
     #[cfg(unix)]
     {
         use std::io::ErrorKind::{InvalidInput, PermissionDenied, Unsupported};
@@ -320,7 +320,7 @@ pub fn sync_parent(path: &Path) -> std::io::Result<()> {
 /// one process or in two, never write into one temporary file: the last rename wins whole.
 /// A name longer than 200 bytes is cut (at a character boundary) to keep the temporary name
 /// within the 255 bytes file systems allow.
-pub fn temp_path(path: &Path) -> PathBuf {
+pub(crate) fn temp_path(path: &Path) -> PathBuf {
     static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let mut name = path
@@ -425,7 +425,7 @@ pub fn records(text: &str) -> impl Iterator<Item = Record<'_>> {
 }
 
 /// Parses a finite `f64` field, with an error naming file, line and field.
-pub fn parse_f64(path: &Path, line: usize, what: &str, field: &str) -> Result<f64> {
+pub(crate) fn parse_f64(path: &Path, line: usize, what: &str, field: &str) -> Result<f64> {
     match field.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
         Ok(_) => Err(Error::parse(

@@ -14,9 +14,9 @@
 //! wins (nothing is changed). Other C libraries and platforms are left alone.
 
 /// The mmap and trim threshold set by [`tune_for_tensors`]: 1 GiB.
-pub const THRESHOLD: usize = 1 << 30;
+pub(crate) const THRESHOLD: usize = 1 << 30;
 
-/// Raises glibc's mmap and trim thresholds to [`THRESHOLD`] unless the environment already
+/// Raises glibc's mmap and trim thresholds to `THRESHOLD` unless the environment already
 /// configures them. Returns whether both were set.
 pub fn tune_for_tensors() -> bool {
     let configured = [

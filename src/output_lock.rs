@@ -24,7 +24,7 @@
 //!
 //! Within one process the lock is re-entrant ([`OutputLock::acquire`] of a folder this
 //! process holds shares that lock), so a binary may lock its `--out` early and the library
-//! ([`ensure_held`], called by [`crate::training::RunDir::prepare`]) check it again.
+//! (`ensure_held`, called by [`crate::training::RunDir::prepare`]) check it again.
 
 use crate::error::{Error, Result};
 use std::fs::{File, OpenOptions};
@@ -179,7 +179,7 @@ fn release(h: Held) {
 /// Makes sure this process holds `dir`: nothing to do when it does (an [`OutputLock`] taken
 /// earlier, by a binary), else the lock is taken and kept until the process ends. For
 /// library code that writes a folder its caller may not have locked.
-pub fn ensure_held(dir: impl AsRef<Path>, what: &str) -> Result<()> {
+pub(crate) fn ensure_held(dir: impl AsRef<Path>, what: &str) -> Result<()> {
     lock(dir.as_ref(), what, false).map(|_| ())
 }
 

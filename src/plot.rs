@@ -23,7 +23,7 @@ pub(crate) fn register_fonts() {
 }
 
 /// Colours of successive series (reference first).
-pub const PALETTE: [RGBColor; 6] = [
+pub(crate) const PALETTE: [RGBColor; 6] = [
     RGBColor(40, 40, 40),
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
@@ -103,7 +103,7 @@ fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 }
 
 /// A line chart of several series.
-pub fn line_chart(
+pub(crate) fn line_chart(
     path: impl AsRef<Path>,
     title: &str,
     x_label: &str,
@@ -215,7 +215,7 @@ fn draw_lines<DB: DrawingBackend>(
 
 /// The two world axes along which a set of trajectories spreads most (a
 /// "top view" whatever the world frame's up axis is).
-pub fn dominant_plane(trajectories: &[&[Point3<f64>]]) -> (usize, usize) {
+pub(crate) fn dominant_plane(trajectories: &[&[Point3<f64>]]) -> (usize, usize) {
     let mut var = [0.0f64; 3];
     for pts in trajectories {
         if pts.is_empty() {
@@ -322,7 +322,7 @@ pub fn trajectory_figure(
 }
 
 /// One image of a [`panels_figure`] with its title.
-pub struct Panel<'a> {
+pub(crate) struct Panel<'a> {
     /// Caption drawn above the image.
     pub title: &'a str,
     /// The image shown.
@@ -332,7 +332,7 @@ pub struct Panel<'a> {
 /// Images side by side (`columns` a row, each under its title) above a colour legend
 /// (`(name, rgb)` swatches), like the paper's Fig. 11. Panels of different sizes are placed in
 /// cells of the largest size.
-pub fn panels_figure(
+pub(crate) fn panels_figure(
     path: impl AsRef<Path>,
     panels: &[Panel<'_>],
     columns: usize,

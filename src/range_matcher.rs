@@ -10,7 +10,7 @@
 //! The window is centred where the keypoint is expected in image 2. The paper centres
 //! it at the keypoint's own position, which assumes image motion below half the
 //! window (70 px); fast rotations move points farther (fr1_rpy: ~120 px in 5 frames).
-//! [`guided_range_match`] first estimates the image motion as an affine map from
+//! `guided_range_match` first estimates the image motion as an affine map from
 //! confident global matches (mutual nearest neighbours passing a ratio test, RANSAC)
 //! and centres each window at the mapped position; tracking centres it at the
 //! position predicted by the motion model instead.
@@ -222,10 +222,10 @@ fn check_inputs(name: &str, points: &[[f32; 2]], desc: &[f32], dim: usize) -> Re
 }
 
 /// An affine image-motion estimate `p₂ ≈ A·p₁ + t` (row-major `[a, b, tx, c, d, ty]`).
-pub type Affine = [f64; 6];
+pub(crate) type Affine = [f64; 6];
 
 /// Applies an [`Affine`] to a point.
-pub fn apply_affine(a: &Affine, p: [f32; 2]) -> [f32; 2] {
+pub(crate) fn apply_affine(a: &Affine, p: [f32; 2]) -> [f32; 2] {
     let (x, y) = (p[0] as f64, p[1] as f64);
     [
         (a[0] * x + a[1] * y + a[2]) as f32,
@@ -233,7 +233,7 @@ pub fn apply_affine(a: &Affine, p: [f32; 2]) -> [f32; 2] {
     ]
 }
 
-/// Settings of the global motion estimate of [`guided_range_match`].
+/// Settings of the global motion estimate of `guided_range_match`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GuideConfig {
     /// Ratio test of the global (whole-image) matches the motion is estimated from.
@@ -276,7 +276,7 @@ fn fit_affine(pairs: &[([f32; 2], [f32; 2])]) -> Option<Affine> {
 
 /// RANSAC estimate of the affine image motion from putative pairs; returns the
 /// model refitted on its inliers and the inlier count.
-pub fn estimate_affine(
+pub(crate) fn estimate_affine(
     pairs: &[([f32; 2], [f32; 2])],
     cfg: &GuideConfig,
 ) -> Option<(Affine, usize)> {
@@ -330,7 +330,7 @@ pub fn estimate_affine(
 /// image motion estimated from the descriptors themselves (see the module docs).
 /// Returns the matches and the motion estimate (`None`: too few confident global
 /// matches, the windows were centred at the keypoint positions as in the paper).
-pub fn guided_range_match(
+pub(crate) fn guided_range_match(
     points1: &[[f32; 2]],
     desc1: &[f32],
     points2: &[[f32; 2]],
@@ -365,7 +365,7 @@ pub fn guided_range_match(
 /// `points2` (`desc2`) with the range matcher. Returns pairs in order of `i`.
 /// `points1` are the window centres: the keypoints' own positions (the paper) or where
 /// they are expected in image 2 (a motion estimate or prediction).
-pub fn range_match(
+pub(crate) fn range_match(
     points1: &[[f32; 2]],
     desc1: &[f32],
     points2: &[[f32; 2]],

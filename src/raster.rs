@@ -129,13 +129,13 @@ impl GrayF32 {
 
 /// The largest Gaussian blur a config or command line may ask for, pixels: its kernel has 97
 /// taps; a typo such as 1e5 would take hours a frame (and overflow the kernel's index).
-pub const MAX_BLUR_SIGMA: f32 = 16.0;
+pub(crate) const MAX_BLUR_SIGMA: f32 = 16.0;
 
 /// The longest motion-blur kernel a config or command line may ask for, pixels.
-pub const MAX_MOTION_KERNEL: usize = 255;
+pub(crate) const MAX_MOTION_KERNEL: usize = 255;
 
 /// Normalised Gaussian kernel of radius `ceil(3 sigma)`.
-pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
+pub(crate) fn gaussian_kernel(sigma: f32) -> Vec<f32> {
     let r = (3.0 * sigma).ceil().max(1.0) as i32;
     let k: Vec<f32> = (-r..=r)
         .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())

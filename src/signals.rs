@@ -9,13 +9,13 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// The signals that stop a run.
 #[cfg(unix)]
-pub const STOP_SIGNALS: [i32; 3] = [
+pub(crate) const STOP_SIGNALS: [i32; 3] = [
     signal_hook::consts::SIGINT,
     signal_hook::consts::SIGTERM,
     signal_hook::consts::SIGHUP,
 ];
 
-/// A stop flag raised by [`STOP_SIGNALS`], and which signal raised it.
+/// A stop flag raised by `STOP_SIGNALS`, and which signal raised it.
 #[derive(Debug, Clone)]
 pub struct StopSignals {
     stop: Arc<AtomicBool>,

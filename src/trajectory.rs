@@ -9,7 +9,7 @@ use std::io::Write;
 use std::path::Path;
 
 /// Largest coordinate a trajectory file may hold, metres (a planet's worth).
-pub const MAX_POSITION: f64 = 1e7;
+pub(crate) const MAX_POSITION: f64 = 1e7;
 
 /// A trajectory: strictly increasing timestamps (seconds) and poses.
 #[derive(Debug, Clone, Default, PartialEq)]

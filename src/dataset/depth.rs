@@ -116,13 +116,13 @@ impl DepthImage {
 
 /// Decodes a 16-bit single-channel PNG as it is (raw sensor values); an 8-bit or colour image
 /// is an error naming the file.
-pub fn read_png_u16(path: &Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
+pub(crate) fn read_png_u16(path: &Path) -> Result<ImageBuffer<Luma<u16>, Vec<u16>>> {
     read_png_u16_with(path, crate::io::MAX_IMAGE_BYTES, &crate::imageio::any_image)
 }
 
 /// [`read_png_u16`] of a file of at most `max_bytes`, its header also checked by `check`
 /// before the pixels are decoded ([`crate::imageio::decode`]).
-pub fn read_png_u16_with(
+pub(crate) fn read_png_u16_with(
     path: &Path,
     max_bytes: u64,
     check: &dyn Fn(&ImageHeader) -> Result<()>,

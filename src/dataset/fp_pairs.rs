@@ -125,7 +125,7 @@ pub fn transfer(
 
 /// A full-resolution binary map of detector targets: 1 at corner pixels.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TargetMap {
+pub(crate) struct TargetMap {
     /// Map width, pixels.
     pub width: usize,
     /// Map height, pixels.
@@ -152,22 +152,18 @@ impl TargetMap {
     }
 
     /// Number of target pixels.
+    #[cfg(test)]
     pub fn count(&self) -> usize {
         self.data.iter().filter(|&&v| v != 0).count()
-    }
-
-    /// Integer positions `(x, y)` of the target pixels in raster order.
-    pub fn pixels(&self) -> Vec<(usize, usize)> {
-        (0..self.data.len())
-            .filter(|&i| self.data[i] != 0)
-            .map(|i| (i % self.width, i / self.width))
-            .collect()
     }
 }
 
 /// Detector targets of a colour image: its Harris corners (on the ITU-R 601 luma)
 /// and their full-resolution map.
-pub fn detector_targets(rgb: &RgbImage, harris: &HarrisConfig) -> (Vec<Keypoint>, TargetMap) {
+pub(crate) fn detector_targets(
+    rgb: &RgbImage,
+    harris: &HarrisConfig,
+) -> (Vec<Keypoint>, TargetMap) {
     let gray = GrayF32::from_rgb(rgb);
     let corners = harris_corners(&gray, harris);
     let map = TargetMap::from_keypoints(&corners, gray.width, gray.height);
@@ -175,7 +171,7 @@ pub fn detector_targets(rgb: &RgbImage, harris: &HarrisConfig) -> (Vec<Keypoint>
 }
 
 /// Frame pairs `(i, i + k)` of a sequence of `n_frames`, by `i` then by gap order.
-pub fn pair_indices(n_frames: usize, gaps: &[usize]) -> Vec<(usize, usize)> {
+pub(crate) fn pair_indices(n_frames: usize, gaps: &[usize]) -> Vec<(usize, usize)> {
     (0..n_frames)
         .flat_map(|i| {
             gaps.iter()
@@ -209,7 +205,7 @@ fn frame_parts<'f>(f: &'f Frame, camera: &Camera, role: &str) -> Result<(&'f Dep
 
 /// Maps given corners of A into B (eqs 5-7) with the occlusion check; the corners
 /// are kept in the result as `corners_a`.
-pub fn map_corners(
+pub(crate) fn map_corners(
     camera: &Camera,
     a: &Frame,
     b: &Frame,
@@ -275,7 +271,7 @@ pub fn fp_pair(camera: &Camera, a: &Frame, b: &Frame, cfg: &FpConfig) -> Result<
 /// frame they need once (a block decodes `PAIR_BLOCK` + the largest gap frames).
 const PAIR_BLOCK: usize = 32;
 
-/// All FP pairs of a sequence, in [`pair_indices`] order, computed in parallel: the pairs
+/// All FP pairs of a sequence, in `pair_indices` order, computed in parallel: the pairs
 /// are cut into blocks of `PAIR_BLOCK` consecutive first frames, and each block decodes
 /// the frames it needs once and keeps them only while it runs.
 pub fn fp_pairs(seq: &TumSequence, camera: &Camera, cfg: &FpConfig) -> Vec<Result<FpPair>> {

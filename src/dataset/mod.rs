@@ -3,7 +3,7 @@
 pub mod augment;
 pub mod depth;
 pub mod fp_pairs;
-pub mod frame_check;
+pub(crate) mod frame_check;
 pub mod labels;
 pub mod nyu;
 pub mod nyu_mat;

@@ -101,7 +101,7 @@ fn png_stems(dir: &Path) -> Result<Vec<String>> {
 
 /// Reads the 894 -> 40 class map (`id894,name894,id40,name40`, 1-based ids) as a
 /// lookup from 894-class value (0 = unlabelled) to 0-based 40-class index or void.
-pub fn read_894_to_40(path: impl AsRef<Path>) -> Result<Vec<u8>> {
+pub(crate) fn read_894_to_40(path: impl AsRef<Path>) -> Result<Vec<u8>> {
     let path = path.as_ref();
     parse_894_to_40(&read_text(path)?, path)
 }
@@ -148,7 +148,7 @@ fn parse_894_to_40(text: &str, path: &Path) -> Result<Vec<u8>> {
 
 /// Maps 894-class ids (row-major, `width` pixels a row) to 40-class indices with `map`
 /// ([`read_894_to_40`]); an id the table does not have is an error naming the pixel.
-pub fn map_894_to_40(
+pub(crate) fn map_894_to_40(
     ids: &[u16],
     width: usize,
     map: &[u8],

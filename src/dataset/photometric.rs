@@ -11,19 +11,19 @@ use rand::{Rng, RngExt};
 use serde::{Deserialize, Serialize};
 
 /// Adds `delta` to every intensity (clamped to [0, 1]).
-pub fn brightness(img: &GrayF32, delta: f32) -> GrayF32 {
+pub(crate) fn brightness(img: &GrayF32, delta: f32) -> GrayF32 {
     map(img, |v| v + delta)
 }
 
 /// Scales intensities about the image mean by `factor` (clamped to [0, 1]).
-pub fn contrast(img: &GrayF32, factor: f32) -> GrayF32 {
+pub(crate) fn contrast(img: &GrayF32, factor: f32) -> GrayF32 {
     let mean = img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len().max(1) as f64;
     let mean = mean as f32;
     map(img, |v| (v - mean) * factor + mean)
 }
 
 /// Adds zero-mean Gaussian noise of standard deviation `sigma` (clamped to [0, 1]).
-pub fn gaussian_noise<R: Rng + ?Sized>(img: &GrayF32, sigma: f32, rng: &mut R) -> GrayF32 {
+pub(crate) fn gaussian_noise<R: Rng + ?Sized>(img: &GrayF32, sigma: f32, rng: &mut R) -> GrayF32 {
     let mut out = img.clone();
     for v in out.data.iter_mut() {
         *v = (*v + sigma * standard_normal(rng)).clamp(0.0, 1.0);
@@ -32,7 +32,7 @@ pub fn gaussian_noise<R: Rng + ?Sized>(img: &GrayF32, sigma: f32, rng: &mut R) -
 }
 
 /// Gaussian blur of standard deviation `sigma` pixels (borders replicated).
-pub fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
+pub(crate) fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
     if sigma <= 0.0 {
         return img.clone();
     }
@@ -42,7 +42,7 @@ pub fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
 /// Horizontal motion blur: the mean of a 1xK box (`motion:K`) over offsets
 /// `-⌊K/2⌋ ..= K - 1 - ⌊K/2⌋` (OpenCV's `filter2D` default anchor; centred for odd K),
 /// borders replicated.
-pub fn motion_blur(img: &GrayF32, k: usize) -> GrayF32 {
+pub(crate) fn motion_blur(img: &GrayF32, k: usize) -> GrayF32 {
     if k <= 1 {
         return img.clone();
     }
@@ -80,15 +80,15 @@ fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f32 {
 /// One degradation with its parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum Degradation {
-    /// Add this offset to every intensity ([`brightness`]).
+    /// Add this offset to every intensity (`brightness`).
     Brightness(f32),
-    /// Scale intensities about the mean by this factor ([`contrast`]).
+    /// Scale intensities about the mean by this factor (`contrast`).
     Contrast(f32),
-    /// Add Gaussian noise of this standard deviation ([`gaussian_noise`]).
+    /// Add Gaussian noise of this standard deviation (`gaussian_noise`).
     Noise(f32),
-    /// Gaussian blur of this sigma, pixels ([`gaussian_blur`]).
+    /// Gaussian blur of this sigma, pixels (`gaussian_blur`).
     Gaussian(f32),
-    /// Horizontal motion blur with a kernel this many pixels long ([`motion_blur`]).
+    /// Horizontal motion blur with a kernel this many pixels long (`motion_blur`).
     Motion(usize),
 }
 

@@ -36,16 +36,16 @@ use std::path::{Path, PathBuf};
 pub const NO_READING: u16 = u16::MAX;
 
 /// Depth PNG value per metre in 7-Scenes (millimetres).
-pub const DEPTH_SCALE: f64 = 1000.0;
+pub(crate) const DEPTH_SCALE: f64 = 1000.0;
 
 /// Depth PNG value per metre written by [`convert`] (TUM RGB-D's).
-pub const TUM_DEPTH_SCALE: f64 = 5000.0;
+pub(crate) const TUM_DEPTH_SCALE: f64 = 5000.0;
 
 /// Frames a second of the made-up time stamps.
-pub const FRAME_RATE: f64 = 30.0;
+pub(crate) const FRAME_RATE: f64 = 30.0;
 
 /// Time stamp of frame 0, seconds.
-pub const FIRST_STAMP: f64 = 1000.0;
+pub(crate) const FIRST_STAMP: f64 = 1000.0;
 
 /// How a 7-Scenes depth image is registered to its colour image. Loaded from TOML:
 ///
@@ -180,11 +180,11 @@ impl Registration {
 }
 
 /// Largest frame number accepted (7-Scenes sequences have 500-1000 frames).
-pub const MAX_FRAME_NUMBER: usize = 99_999_999;
+pub(crate) const MAX_FRAME_NUMBER: usize = 99_999_999;
 
 /// One frame of a 7-Scenes sequence folder.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SevenScenesFrame {
+pub(crate) struct SevenScenesFrame {
     /// The frame number `NNNNNN` of its file names.
     pub number: usize,
     /// Path of its `frame-NNNNNN.color.png` colour image.
@@ -205,7 +205,7 @@ impl SevenScenesFrame {
 /// Lists a 7-Scenes sequence folder's frames in frame order: every
 /// `frame-NNNNNN.color.png` with its `.depth.png` and `.pose.txt` (a missing one is an
 /// error naming it).
-pub fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<SevenScenesFrame>> {
+pub(crate) fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<SevenScenesFrame>> {
     let dir = dir.as_ref();
     if !dir.is_dir() {
         return Err(Error::invalid(
@@ -278,7 +278,7 @@ pub fn list_frames(dir: impl AsRef<Path>) -> Result<Vec<SevenScenesFrame>> {
 
 /// Largest camera position accepted, metres from the origin: 7-Scenes' rooms are a few
 /// metres across; a kilometre is beyond any indoor RGB-D recording.
-pub const MAX_POSITION: f64 = 1000.0;
+pub(crate) const MAX_POSITION: f64 = 1000.0;
 
 /// An error listing the frame numbers missing between the first and the last of `frames`
 /// (sorted): 7-Scenes numbers a sequence's frames without gaps, so a gap is an incomplete
@@ -324,7 +324,7 @@ fn check_numbering(src: &Path, frames: &[SevenScenesFrame]) -> Result<()> {
 /// transform (last row 0 0 0 1, an orthonormal rotation, a position within
 /// [`MAX_POSITION`] of the origin). Anything else is an error naming the file, and the line
 /// where one line is at fault.
-pub fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
+pub(crate) fn read_pose(path: impl AsRef<Path>) -> Result<Pose> {
     let path = path.as_ref();
     let text = read_text(path)?;
     let mut rows: Vec<[f64; 4]> = Vec::new();

@@ -101,10 +101,10 @@ pub struct TumSequence {
 /// sequences have a few thousand, 7-Scenes' 1000; `synth` writes at most this many). Opening a
 /// sequence costs a few hundred bytes a frame before any image is read, so a table of
 /// millions of lines is refused rather than read.
-pub const MAX_SEQUENCE_FRAMES: usize = 1_000_000;
+pub(crate) const MAX_SEQUENCE_FRAMES: usize = 1_000_000;
 
 /// Longest file name a table may give, bytes (Linux's PATH_MAX: no longer path can be opened).
-pub const MAX_PATH_BYTES: usize = 4096;
+pub(crate) const MAX_PATH_BYTES: usize = 4096;
 
 /// A file name field of a table, checked to be a name a file can have.
 fn file_field<'a>(path: &Path, line: usize, field: &'a str) -> Result<&'a str> {

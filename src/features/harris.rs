@@ -76,7 +76,7 @@ impl Default for HarrisConfig {
 }
 
 /// Harris response map.
-pub fn harris_response(img: &GrayF32, cfg: &HarrisConfig) -> GrayF32 {
+pub(crate) fn harris_response(img: &GrayF32, cfg: &HarrisConfig) -> GrayF32 {
     let (gx, gy) = img.sobel();
     let n = gx.data.len();
     let mut xx = GrayF32::new(img.width, img.height);
@@ -110,7 +110,7 @@ pub fn harris_corners(img: &GrayF32, cfg: &HarrisConfig) -> Vec<Keypoint> {
 /// The corners of a response map as [`harris_corners`] selects them: above
 /// `relative_threshold` of the maximum, local maxima within `nms_radius`, away from the
 /// border, the strongest `max_corners`.
-pub fn corners_of_response(r: &GrayF32, cfg: &HarrisConfig) -> Vec<Keypoint> {
+pub(crate) fn corners_of_response(r: &GrayF32, cfg: &HarrisConfig) -> Vec<Keypoint> {
     let max = r.data.iter().copied().fold(0.0f32, f32::max);
     if max <= 0.0 {
         return Vec::new();

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use super::patch::parabola_peak;
 use crate::raster::GrayF32;
 
-/// Settings of [`refine_matches`].
+/// Settings of `refine_matches`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MatchRefineConfig {
@@ -28,10 +28,10 @@ pub struct MatchRefineConfig {
 }
 
 /// Upper bound of [`MatchRefineConfig::patch_radius`].
-pub const MAX_PATCH_RADIUS: usize = 15;
+pub(crate) const MAX_PATCH_RADIUS: usize = 15;
 
 /// Upper bound of [`MatchRefineConfig::search_px`].
-pub const MAX_SEARCH_PX: usize = 8;
+pub(crate) const MAX_SEARCH_PX: usize = 8;
 
 impl Default for MatchRefineConfig {
     /// 15x15 patches, moves up to 3 px, NCC at least 0.7: chosen on the validation pairs
@@ -72,7 +72,7 @@ impl MatchRefineConfig {
 /// motion's rotation from `a` to `b` (positive: clockwise on screen, image y down, as FPFDCNN's
 /// `Homography::rotation` and roll compensation give it), by which `b`'s patch is turned.
 /// Returns how many matches moved. Matches whose patch in `a` is flat stay.
-pub fn refine_matches(
+pub(crate) fn refine_matches(
     a: &GrayF32,
     b: &GrayF32,
     matches: &mut [(Point2<f64>, Point2<f64>)],

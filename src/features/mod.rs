@@ -7,7 +7,7 @@ pub mod harris;
 pub mod match_refine;
 pub mod orb;
 pub mod patch;
-pub mod subpix;
+pub(crate) mod subpix;
 
 pub use bf_matcher::{HammingMatch, bf_match, hamming};
 pub use harris::{HarrisConfig, Keypoint, harris_corners};

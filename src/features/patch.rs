@@ -63,7 +63,7 @@ pub fn search(
 /// Sub-pixel offset of the peak of the parabola through scores `m`, `c`, `p` at -1, 0, +1
 /// (`c` the largest, which keeps it within ±0.5; clamped there otherwise); 0 when they do
 /// not bend down.
-pub fn parabola_peak(m: f32, c: f32, p: f32) -> f64 {
+pub(crate) fn parabola_peak(m: f32, c: f32, p: f32) -> f64 {
     let d = m - 2.0 * c + p;
     if d < 0.0 {
         f64::from(0.5 * (m - p) / d).clamp(-0.5, 0.5)

@@ -41,7 +41,12 @@ pub fn gradients(img: &GrayF32, cfg: &SubPixConfig) -> (GrayF32, GrayF32) {
 /// Refines `p` to the corner position; returns `p` unchanged where the window holds no
 /// corner (a near-singular gradient matrix: an edge or a flat patch) or where the
 /// estimate leaves `max_shift`.
-pub fn refine_corner(gx: &GrayF32, gy: &GrayF32, p: [f32; 2], cfg: &SubPixConfig) -> [f32; 2] {
+pub(crate) fn refine_corner(
+    gx: &GrayF32,
+    gy: &GrayF32,
+    p: [f32; 2],
+    cfg: &SubPixConfig,
+) -> [f32; 2] {
     let (w, h) = (gx.width as isize, gx.height as isize);
     let r = cfg.radius as isize;
     let mut q = p;

@@ -12,7 +12,7 @@ use rand::SeedableRng;
 use serde::{Deserialize, Serialize};
 
 /// Largest number of warps (each costs one Harris response of the whole frame).
-pub const MAX_WARPS: usize = 256;
+pub(crate) const MAX_WARPS: usize = 256;
 
 /// How many warps, and their range.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -59,7 +59,11 @@ impl AdaptationConfig {
 /// Each pixel's Harris response, normalised by the largest response of its view, averaged
 /// over the identity and `cfg.warps` random homographies of the frame (over the views in
 /// which the pixel is inside the warped image).
-pub fn adapted_response(img: &GrayF32, harris: &HarrisConfig, cfg: &AdaptationConfig) -> GrayF32 {
+pub(crate) fn adapted_response(
+    img: &GrayF32,
+    harris: &HarrisConfig,
+    cfg: &AdaptationConfig,
+) -> GrayF32 {
     let (w, h) = (img.width, img.height);
     let normalised = |view: &GrayF32| {
         let mut r = harris_response(view, harris);
@@ -95,7 +99,7 @@ pub fn adapted_response(img: &GrayF32, harris: &HarrisConfig, cfg: &AdaptationCo
 }
 
 /// The corners of [`adapted_response`], selected as Harris corners are.
-pub fn adapted_corners(
+pub(crate) fn adapted_corners(
     img: &GrayF32,
     harris: &HarrisConfig,
     cfg: &AdaptationConfig,

@@ -11,7 +11,7 @@
 //! is held out for validation.
 //!
 //! Beside the posed pairs, a sequence may add `homographies` pairs per training frame
-//! ([`super::homography`]): a crop of the frame and the same crop through a random
+//! (`super::homography`): a crop of the frame and the same crop through a random
 //! homography, with exact matches (SuperPoint's recipe) on real texture.
 
 use super::homography::{Homography, HomographyConfig};
@@ -44,7 +44,7 @@ pub struct SequenceSource {
     #[serde(default = "default_repeat")]
     pub repeat: usize,
     /// Homography pairs per training frame (0 = none), made afresh in every batch
-    /// ([`super::homography`]); `repeat` multiplies them like the posed pairs; needs
+    /// (`super::homography`); `repeat` multiplies them like the posed pairs; needs
     /// `sampling = "crop"`.
     #[serde(default)]
     pub homographies: usize,
@@ -251,7 +251,7 @@ impl FpDataConfig {
 }
 
 /// The default training image size `[height, width]`.
-pub fn default_size() -> [usize; 2] {
+pub(crate) fn default_size() -> [usize; 2] {
     [240, 320]
 }
 
@@ -318,7 +318,7 @@ impl FpDataConfig {
 
 /// A frame at the training resolution (full resolution when cropping).
 #[derive(Debug, Clone)]
-pub struct FrameEntry {
+pub(crate) struct FrameEntry {
     /// The frame in grayscale, values in [0, 1].
     pub gray: GrayF32,
     /// Detector target pixels `(x, y)`.
@@ -327,7 +327,7 @@ pub struct FrameEntry {
 
 /// A frame pair with its matches in its frames' pixels.
 #[derive(Debug, Clone)]
-pub struct PairEntry {
+pub(crate) struct PairEntry {
     /// Index of frame A in [`FpDataset::frames`].
     pub a: usize,
     /// Index of frame B in [`FpDataset::frames`].
@@ -340,7 +340,7 @@ pub struct PairEntry {
 
 /// Frames and pairs of one split.
 #[derive(Debug, Clone, Default)]
-pub struct FpDataset {
+pub(crate) struct FpDataset {
     /// Training image size.
     pub height: usize,
     /// Training image width, pixels.
@@ -360,7 +360,7 @@ pub struct FpDataset {
 
 /// A batch in host memory, as [`FpDataset::load`] makes it (on the training loader's
 /// thread); [`FpHostBatch::to_device`] makes it an [`FpBatch`].
-pub struct FpHostBatch {
+pub(crate) struct FpHostBatch {
     /// `[N, 1, H, W]` images A and B.
     images: [Vec<f32>; 2],
     /// `[N, 1, H, W]` detector targets of A and B (1 at a target pixel).
@@ -371,7 +371,7 @@ pub struct FpHostBatch {
 
 impl FpHostBatch {
     /// The batch as tensors on `device`.
-    pub fn to_device(self, device: &Device) -> FpBatch {
+    pub fn into_device(self, device: &Device) -> FpBatch {
         let shape = self.shape;
         let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, shape), device);
         let [ia, ib] = self.images;
@@ -387,7 +387,7 @@ impl FpHostBatch {
 }
 
 /// A batch ready for the network.
-pub struct FpBatch {
+pub(crate) struct FpBatch {
     /// `[N, 1, H, W]` images A.
     pub image_a: Tensor<4>,
     /// `[N, 1, H, W]` images B.
@@ -401,7 +401,7 @@ pub struct FpBatch {
 }
 
 /// Resizes a float image with bilinear sampling (pixel centres aligned).
-pub fn resize_gray(img: &GrayF32, width: usize, height: usize) -> GrayF32 {
+pub(crate) fn resize_gray(img: &GrayF32, width: usize, height: usize) -> GrayF32 {
     if (img.width, img.height) == (width, height) {
         return img.clone();
     }
@@ -480,7 +480,9 @@ impl FpDataset {
         rng: &mut impl rand::Rng,
         device: &Device,
     ) -> Result<FpBatch> {
-        Ok(self.load(ids, augment, max_matches, rng)?.to_device(device))
+        Ok(self
+            .load(ids, augment, max_matches, rng)?
+            .into_device(device))
     }
 
     /// [`FpDataset::batch`] in host memory (no device work).

@@ -4,7 +4,7 @@
 //! by a keypoint orientation as ORB's are (rotated BRIEF), so a camera that rolls about its
 //! optical axis between two images costs it matches (lab/notes/fpfdcnn-results.md, *Roll: stages 15 and 18*). A roll
 //! turns the whole image about the principal point, so it shows in the global image motion the
-//! guided range matcher already estimates ([`guided_range_match`]): when that affine motion
+//! guided range matcher already estimates (`guided_range_match`): when that affine motion
 //! rotates by at least [`DerotationConfig::min_deg`], image B is turned back by that angle
 //! about its centre (the affine guide absorbs the shift between centre and principal point),
 //! described again (one more network pass), and its keypoints, mapped back into B's pixels,
@@ -52,13 +52,13 @@ impl DerotationConfig {
 /// The rotation of an affine image motion's linear part, degrees (positive: clockwise on
 /// screen, image y pointing down, as [`Homography::rotation`]); for `[a, b; c, d]` the angle
 /// of its closest rotation, `atan2(c − b, a + d)`.
-pub fn affine_rotation_deg(m: &Affine) -> f64 {
+pub(crate) fn affine_rotation_deg(m: &Affine) -> f64 {
     (m[3] - m[1]).atan2(m[0] + m[4]).to_degrees()
 }
 
 /// One pair's FPFDCNN matches, with roll compensation.
 #[derive(Debug, Clone)]
-pub struct PairMatches {
+pub(crate) struct PairMatches {
     /// Range-matcher matches between A's keypoints and `features_b`.
     pub matches: Vec<RangeMatch>,
     /// B's keypoints the matches index, in B's pixels.
@@ -70,7 +70,7 @@ pub struct PairMatches {
 /// Matches `fa` (image A's features) to image `b` (`fb`: its features) with the guided range
 /// matcher, turning B back by the estimated roll when it reaches `cfg.min_deg` (see the
 /// module documentation).
-pub fn match_with_derotation(
+pub(crate) fn match_with_derotation(
     detector: &FpfdcnnDetector,
     fa: &Features,
     b: &GrayImage,

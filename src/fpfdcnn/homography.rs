@@ -70,7 +70,7 @@ impl HomographyConfig {
 
 /// A homography between two `width x height` windows, acting on window pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Homography {
+pub(crate) struct Homography {
     /// Maps homogeneous A-window pixels to B-window pixels.
     pub h: Matrix3<f64>,
     /// Its inverse (B to A).

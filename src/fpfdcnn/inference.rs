@@ -34,14 +34,14 @@ pub struct DetectorConfig {
     pub nms_radius: usize,
     /// Keep the `top_k` most probable keypoints (0: all).
     pub top_k: usize,
-    /// No keypoint closer than this to the image border, pixels ([`DEFAULT_BORDER`]).
+    /// No keypoint closer than this to the image border, pixels (`DEFAULT_BORDER`).
     pub border: usize,
     /// The image is resized by this factor before the network (e.g. 0.5 for a
     /// network trained at 240x320 on 480x640 frames); keypoints are reported
     /// in the original image's pixels.
     pub input_scale: f32,
     /// Refine keypoints to the corner in a window of this radius on the full-resolution
-    /// image ([`crate::features::subpix`]); 0: the probability map's pixel.
+    /// image (`crate::features::subpix`); 0: the probability map's pixel.
     pub subpixel_radius: usize,
     /// Average the FP map over this many placements of the network's 16x16 cell grid
     /// (1: the image as it is; 2: also shifted by half a cell diagonally; 4: by half a
@@ -52,7 +52,7 @@ pub struct DetectorConfig {
     /// With several [`Self::grid_shifts`], average each keypoint's descriptor over the
     /// placements too (each placement's unit-normalised, then the mean normalised), at no
     /// extra network pass. The descriptor map is 16 times coarser than the image, so one
-    /// placement's bilinear samples carry its grid as the FP map does ([`DEFAULT_AVERAGE_DESCRIPTORS`]).
+    /// placement's bilinear samples carry its grid as the FP map does (`DEFAULT_AVERAGE_DESCRIPTORS`).
     pub average_descriptors: bool,
     /// With one placement ([`Self::grid_shifts`] = 1), each keypoint's descriptor is the
     /// normalised mean of five unit-normalised bilinear samples of the coarse map: at the
@@ -132,7 +132,7 @@ impl DetectorConfig {
 pub const MAX_KEYPOINTS: usize = 100_000;
 
 /// Upper bound of [`DetectorConfig::levels`].
-pub const MAX_LEVELS: usize = 8;
+pub(crate) const MAX_LEVELS: usize = 8;
 
 /// Default [`DetectorConfig::smoothing`].
 pub const DEFAULT_SMOOTHING: f32 = 2.0;
@@ -141,16 +141,16 @@ pub const DEFAULT_SMOOTHING: f32 = 2.0;
 /// seen again in the other image of a pair; chosen on the validation pairs (2026-11-28,
 /// stage-10 weights, four placements): 6-12 % more correct matches than with 4 px at the
 /// same accuracy (lab/notes/fpfdcnn-results.md, *Stage 10*). `slam` sets its own (`fpfdcnn_border`).
-pub const DEFAULT_BORDER: usize = 16;
+pub(crate) const DEFAULT_BORDER: usize = 16;
 
 /// Default [`DetectorConfig::average_descriptors`]: on, adopted 2026-12-01 (lab/notes/fpfdcnn-results.md,
 /// *Descriptors averaged over the grid placements*): on the validation pairs with four
 /// placements 28-39 % more correct matches at 0.9-3.0 points more accuracy; on the final
 /// split 116 % / 146 % of ORB + BF's correct matches at 76.4 % / 78.7 % (clear / blurred).
-pub const DEFAULT_AVERAGE_DESCRIPTORS: bool = true;
+pub(crate) const DEFAULT_AVERAGE_DESCRIPTORS: bool = true;
 
 /// Upper bound of [`DetectorConfig::descriptor_spread`], pixels (four cells).
-pub const MAX_DESCRIPTOR_SPREAD: usize = 64;
+pub(crate) const MAX_DESCRIPTOR_SPREAD: usize = 64;
 
 /// Default [`DetectorConfig::descriptor_spread`]: 6 px, adopted 2026-12-01 for one pass
 /// (lab/notes/fpfdcnn-results.md, *Descriptors spread in one pass*): chosen among 2, 4, 6 and 8 px on the
@@ -244,7 +244,7 @@ impl Features {
 /// Greedy non-maximum suppression on a probability map: candidates above
 /// `threshold` (away from the border) in decreasing order, each suppressing a
 /// `(2r+1)²` square around it; at most `top_k`.
-pub fn select_keypoints(
+pub(crate) fn select_keypoints(
     prob: &[f32],
     width: usize,
     height: usize,

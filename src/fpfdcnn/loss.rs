@@ -23,7 +23,7 @@
 //!   predicts each 16x16 cell's sub-pixel probabilities from that cell's features, so a
 //!   single pass carries the cell grid, which `eval matching` averages out over four
 //!   placements. This term runs image A again shifted by half a cell and pulls both
-//!   probability maps, on their overlap, towards their mean ([`shift_consistency`]), so
+//!   probability maps, on their overlap, towards their mean (`shift_consistency`), so
 //!   that one pass (what `slam` runs) looks more like the average of placements.
 //! * Descriptor shift consistency (optional, `descriptor_shift_consistency`, 0 by
 //!   default): the same for the descriptors, which are sampled from a map 16 times
@@ -31,7 +31,7 @@
 //!   the grid falls (averaging four placements' descriptors gives 28-39 % more correct
 //!   matches, lab/notes/fpfdcnn-results.md *Descriptors averaged over the grid placements*). At A's matched
 //!   points inside the shifted crop, both descriptors are pulled towards their normalised
-//!   mean (detached) by cosine distance ([`descriptor_shift_consistency`]).
+//!   mean (detached) by cosine distance (`descriptor_shift_consistency`).
 //!
 //! Descriptors are sampled from the coarse L10 map at the (sub-pixel) match
 //! positions with the bilinear weights of the FD layer, as a sparse matrix
@@ -63,14 +63,14 @@ pub struct FpfdcnnLossConfig {
     /// Near negatives per matched point (0: none, the default): descriptors sampled on a
     /// ring of `near_radius_px` around the point's partner, which the softmax must rank
     /// below the partner. The other matches' partners are seldom that close, and Lowe's
-    /// ratio test fails when a keypoint there matches almost as well ([`ring_points`]).
+    /// ratio test fails when a keypoint there matches almost as well (`ring_points`).
     pub near_negatives: usize,
     /// Radius of that ring, pixels (training resolution).
     pub near_radius_px: f32,
-    /// Weight of the shift-consistency term (0: off, the default; [`shift_consistency`]).
+    /// Weight of the shift-consistency term (0: off, the default; `shift_consistency`).
     pub shift_consistency: f64,
     /// Weight of the descriptors' shift-consistency term (0: off, the default;
-    /// [`descriptor_shift_consistency`]).
+    /// `descriptor_shift_consistency`).
     pub descriptor_shift_consistency: f64,
 }
 
@@ -159,7 +159,7 @@ impl FpfdcnnLossConfig {
 /// the additive mask of [`descriptor_infonce`]'s near negatives: 0, or a large negative value
 /// where clamping brought a point within `exclusion_px` of its centre (it would be the
 /// positive itself); a ring at the exclusion radius itself is kept whole.
-pub fn ring_points(
+pub(crate) fn ring_points(
     points: &[[f32; 2]],
     count: usize,
     radius: f32,
@@ -190,7 +190,7 @@ pub fn ring_points(
 /// Each matched point's own negatives for [`descriptor_infonce`]: `per_point` descriptors
 /// (`[M · per_point, D]`, normalised, point by point) around A's points (for the B -> A
 /// softmax) and around B's (for A -> B), with their additive masks (`[M, per_point]`).
-pub struct NearNegatives {
+pub(crate) struct NearNegatives {
     /// `[M · per_point, D]` descriptors of image A on rings around A's points (B -> A softmax).
     pub around_a: Tensor<2>,
     /// `[M, per_point]` additive mask of `around_a` (0, or large negative near the positive).
@@ -215,7 +215,7 @@ fn own_similarities(x: Tensor<2>, near: Tensor<2>, k: usize) -> Tensor<2> {
 
 /// Weighted binary cross-entropy of a probability map `[N, 1, H, W]` against a
 /// 0/1 target of the same shape, averaged with the weights.
-pub fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tensor<1> {
+pub(crate) fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tensor<1> {
     let eps = 1e-6;
     let p = prob.clamp(eps, 1.0 - eps);
     let weights = target.clone().mul_scalar(pos_weight - 1.0).add_scalar(1.0);
@@ -232,7 +232,7 @@ pub fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) -> Tens
 /// `shifted` (`[N, 1, H − 2s, W − 2s]`, of the same image cropped by `s` pixels on every
 /// side, `s` half a cell): on their overlap each map is pulled towards the pair's mean
 /// (detached) by [`detector_bce`] with soft targets, averaged over the two.
-pub fn shift_consistency(
+pub(crate) fn shift_consistency(
     prob: Tensor<4>,
     shifted: Tensor<4>,
     s: usize,
@@ -248,7 +248,7 @@ pub fn shift_consistency(
 /// Shift consistency of descriptors: `a` and `shifted` (`[M, D]`, unit rows) describe the same
 /// image points from two placements of the cell grid; each is pulled towards their normalised
 /// mean (detached) by the mean cosine distance `1 − cos`, averaged over the two.
-pub fn descriptor_shift_consistency(a: Tensor<2>, shifted: Tensor<2>) -> Tensor<1> {
+pub(crate) fn descriptor_shift_consistency(a: Tensor<2>, shifted: Tensor<2>) -> Tensor<1> {
     let mean = l2_normalize(a.clone() + shifted.clone()).detach();
     let cos = |x: Tensor<2>| x.mul(mean.clone()).sum_dim(1).mean();
     (cos(a) + cos(shifted))
@@ -261,7 +261,7 @@ pub fn descriptor_shift_consistency(a: Tensor<2>, shifted: Tensor<2>) -> Tensor<
 /// (`[N, cell², Hc, Wc]`, L8 before its sigmoid) against the cell's target pixels (the
 /// 0/1 map `[N, 1, H, W]`, several targets sharing the probability), averaged over the
 /// cells that hold a target; 0 when none does.
-pub fn detector_cell_ce(logits: Tensor<4>, target: Tensor<4>, cell: usize) -> Tensor<1> {
+pub(crate) fn detector_cell_ce(logits: Tensor<4>, target: Tensor<4>, cell: usize) -> Tensor<1> {
     let t = crate::nn::pixel_unshuffle(target, cell);
     let count = t.clone().sum_dim(1);
     let has = count.clone().greater_elem(0.0).float();
@@ -274,7 +274,7 @@ pub fn detector_cell_ce(logits: Tensor<4>, target: Tensor<4>, cell: usize) -> Te
 /// The `[M, Hc·Wc]` matrix that samples a coarse map (of an image of
 /// `[height, width]` pixels) bilinearly at sub-pixel points `(x, y)`, as the FD
 /// layer followed by reading those pixels would.
-pub fn sampling_matrix(
+pub(crate) fn sampling_matrix(
     points: &[[f32; 2]],
     [hc, wc]: [usize; 2],
     [height, width]: [usize; 2],
@@ -295,7 +295,7 @@ pub fn sampling_matrix(
 
 /// L2-normalised descriptors of image `batch` of a coarse map `[N, D, Hc, Wc]`
 /// at the given points: `[M, D]`.
-pub fn sample_descriptors(
+pub(crate) fn sample_descriptors(
     map: &Tensor<4>,
     batch: usize,
     points: &[[f32; 2]],
@@ -321,7 +321,7 @@ pub fn sample_descriptors(
 /// Row-wise L2 normalisation that cannot overflow: rows are first divided by
 /// their largest magnitude (InfoNCE leaves the raw descriptor length free, and
 /// squaring long vectors in f32 would give infinities).
-pub fn l2_normalize(x: Tensor<2>) -> Tensor<2> {
+pub(crate) fn l2_normalize(x: Tensor<2>) -> Tensor<2> {
     let peak = x.clone().abs().max_dim(1).add_scalar(1e-12);
     let x = x.div(peak);
     let norm = x
@@ -338,7 +338,7 @@ pub fn l2_normalize(x: Tensor<2>) -> Tensor<2> {
 /// the positive's; with `near`, each row of the softmax also holds its point's own near
 /// negatives. Returns the loss and the share of points whose nearest descriptor among the
 /// partners (A to B) is their own.
-pub fn descriptor_infonce(
+pub(crate) fn descriptor_infonce(
     a: Tensor<2>,
     b: Tensor<2>,
     points_b: &[[f32; 2]],

@@ -5,7 +5,7 @@ mod config;
 pub mod data;
 pub mod derotation;
 pub mod evaluate;
-pub mod homography;
+pub(crate) mod homography;
 pub mod inference;
 pub mod loss;
 mod model;

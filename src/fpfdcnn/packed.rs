@@ -1,4 +1,4 @@
-//! FPFDCNN inference on the CPU with packed NHWC convolutions ([`crate::nn::packed_conv`]):
+//! FPFDCNN inference on the CPU with packed NHWC convolutions (`crate::nn::packed_conv`):
 //! the same network as [`Fpfdcnn::forward`] (Table 12), weights packed once when the detector
 //! is built, no autodiff graph and no layout change between layers. `slam`, `eval matching`
 //! and the detector use it on the CPU backends; GPUs keep Burn's kernels.
@@ -18,7 +18,7 @@ pub struct PackedOutput {
     pub descriptor_dims: [usize; 3],
 }
 
-/// FPFDCNN's ten convolutions packed for [`PackedConv::forward_view`], with their buffers
+/// FPFDCNN's ten convolutions packed for `PackedConv::forward_view`, with their buffers
 /// (kept between calls: no allocation per image once the size is known, also when several
 /// threads run the network at once: each call takes a set of buffers from a pool and puts it
 /// back).

@@ -301,7 +301,7 @@ impl Learner for FpLearner<'_> {
 
     fn train_step(&self, model: &Fpfdcnn, batch: FpHostBatch) -> Result<Step> {
         let cfg = self.cfg;
-        let batch = batch.to_device(self.device);
+        let batch = batch.into_device(self.device);
         let l = batch_loss(model, batch, cfg)?;
         Ok(Step {
             terms: l.terms(),

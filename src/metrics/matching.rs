@@ -54,7 +54,7 @@ impl MatchingAccuracy {
 /// Distance in pixels between each match's B keypoint and the ground-truth
 /// projection of its A keypoint; `None` when A has no depth there. A point that
 /// projects behind camera B gets an infinite error.
-pub fn match_errors(
+pub(crate) fn match_errors(
     matches: &[(Point2<f64>, Point2<f64>)],
     depth_a: &DepthImage,
     camera: &Camera,
@@ -71,7 +71,7 @@ pub fn match_errors(
 
 /// [`match_errors`] as vectors, ground-truth projection minus B keypoint, pixels; a point
 /// that projects behind camera B gets infinite components.
-pub fn match_error_vectors(
+pub(crate) fn match_error_vectors(
     matches: &[(Point2<f64>, Point2<f64>)],
     depth_a: &DepthImage,
     camera: &Camera,
@@ -119,7 +119,7 @@ pub fn within_offset(errors: &[Vector2<f64>], offset: Vector2<f64>, tolerance_px
 /// matches are right; where most are wrong it is as scattered as they are, and few matches
 /// lie within a few pixels of it (fr1_rpy frames 48-55, blurred by a fast turn: ORB's
 /// medians 180-270 px off, none of its matches within 5 px of them).
-pub fn common_offset(errors: &[Vector2<f64>]) -> Option<Vector2<f64>> {
+pub(crate) fn common_offset(errors: &[Vector2<f64>]) -> Option<Vector2<f64>> {
     let finite: Vec<&Vector2<f64>> = errors
         .iter()
         .filter(|e| e.iter().all(|c| c.is_finite()))
@@ -191,18 +191,18 @@ pub fn frame_pair_accuracy(
 }
 
 /// Radius of keypoint repeatability, pixels (SuperPoint's ε = 3).
-pub const REPEATED_PX: f64 = 3.0;
+pub(crate) const REPEATED_PX: f64 = 3.0;
 
 /// Keypoint repeatability (Schmid, Mohr and Bauckhage 2000; SuperPoint's measure, DeTone et
 /// al. 2018) pooled over both directions of frame pairs: a keypoint of one image is
 /// *visible* when ground truth (its depth, both poses) carries it inside the other image
 /// onto a surface that image's depth confirms (the FP pairs' occlusion check, eq 7), and
-/// *repeated* when the other image has a keypoint within [`REPEATED_PX`] of it. Repeatability
+/// *repeated* when the other image has a keypoint within `REPEATED_PX` of it. Repeatability
 /// bounds what any descriptor can match; correct matches per visible keypoint (the
 /// matching score) measure detector and descriptor together.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct Repeatability {
-    /// Visible keypoints with a keypoint of the other image within [`REPEATED_PX`].
+    /// Visible keypoints with a keypoint of the other image within `REPEATED_PX`.
     pub repeated: usize,
     /// Keypoints that ground truth carries onto a confirmed surface of the other image.
     pub visible: usize,

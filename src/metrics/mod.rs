@@ -3,10 +3,10 @@
 //! segmentation (eqs 16-17) and depth (eqs 18-20) accuracy, summary statistics, and the
 //! per-axis scale of one trajectory's steps against another's.
 
-pub mod axis_scale;
+pub(crate) mod axis_scale;
 pub mod depth;
 pub mod matching;
-pub mod pose_error;
+pub(crate) mod pose_error;
 pub mod segmentation;
 pub mod stats;
 pub mod trajectory;

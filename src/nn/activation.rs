@@ -11,14 +11,14 @@ use burn::prelude::*;
 /// This form never exponentiates a positive number.
 ///
 /// On the CPU backends with `alpha > 0` it runs as one fused pass forward and one backward
-/// ([`super::elu_kernel`]); [`elu_composite`] elsewhere and under [`super::OpImpl::Burn`].
+/// (`super::elu_kernel`); `elu_composite` elsewhere and under [`super::OpImpl::Burn`].
 pub fn elu<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
     super::elu_kernel::elu_fused(x, alpha)
 }
 
 /// [`elu`] from Burn's tensor ops: `max(x, 0) + alpha (e^{min(x, 0)} − 1)` (the GPU path,
 /// and the reference of [`super::elu_kernel`]'s tests).
-pub fn elu_composite<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
+pub(crate) fn elu_composite<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
     let pos = x.clone().clamp_min(0.0);
     let neg = x.clamp_max(0.0).exp().sub_scalar(1.0).mul_scalar(alpha);
     pos + neg

@@ -131,7 +131,7 @@ impl std::fmt::Display for BackendKind {
 
 /// Whether `device` is one of the CPU backends (possibly wrapped in autodiff), where this
 /// crate's own kernels (`nn::conv2d`, `nn::max_pool2d`) may replace Burn's.
-pub fn is_cpu(device: &Device) -> bool {
+pub(crate) fn is_cpu(device: &Device) -> bool {
     let inner = device.clone().without_autodiff();
     #[allow(deprecated)] // ndarray is deprecated upstream but the project's default backend.
     let ndarray = Device::ndarray();

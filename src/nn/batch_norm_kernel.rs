@@ -34,7 +34,7 @@ use rayon::prelude::*;
 /// The extension: `x` (`[N, C, ...]`) normalised with its batch statistics, scaled by `gamma`
 /// and shifted by `beta`; with the per-channel mean and (biased) variance.
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait BatchNormTrainOps: Backend {
+pub(crate) trait BatchNormTrainOps: Backend {
     /// Returns `(output, mean, variance)`, the statistics per channel (`[C]`), `epsilon` inside
     /// the square root.
     fn batch_norm_train_fused(

@@ -50,11 +50,11 @@ pub enum OpImpl {
     ///   convolutions, whose direct loop forward is ~4× faster than nine slices.
     /// * flex: only 1×1 stride-1 convolutions (a plain matrix product, 3–5× faster forward +
     ///   backward on flex too) and, without autodiff, the max pool (2×).
-    /// * stride-1 max pools with autodiff on either CPU backend: [`crate::nn::pool_kernel`]
-    ///   ([`pool_path`]); depthwise convolutions with autodiff on either CPU backend:
-    ///   [`crate::nn::depthwise_kernel`], and dense ones (groups 1, dilation 1) with at least
-    ///   as many output as input channels: [`crate::nn::dense_conv_kernel`]
-    ///   ([`conv_uses_kernel`]; FPFDCNN's train step 0.5× on ndarray, 0.8-0.95× on flex).
+    /// * stride-1 max pools with autodiff on either CPU backend: `crate::nn::pool_kernel`
+    ///   (`pool_path`); depthwise convolutions with autodiff on either CPU backend:
+    ///   `crate::nn::depthwise_kernel`, and dense ones (groups 1, dilation 1) with at least
+    ///   as many output as input channels: `crate::nn::dense_conv_kernel`
+    ///   (`conv_uses_kernel`; FPFDCNN's train step 0.5× on ndarray, 0.8-0.95× on flex).
     /// * the GPU backends (wgpu, cuda): 1×1 convolutions as matrix products too, Burn's own
     ///   kernels otherwise. Burn 0.22.1's wgpu 1×1 convolution returns a tensor that later
     ///   in-place element-wise ops read wrongly (SDFCNN's one-channel depth head gave an L1
@@ -63,7 +63,7 @@ pub enum OpImpl {
     Auto,
     /// Always Burn's own kernels (`Conv2d::forward`, `MaxPool2d::forward`).
     Burn,
-    /// Always the composite ops ([`conv2d_matmul`], [`crate::nn::pool::max_pool2d_shifted`]).
+    /// Always the composite ops ([`conv2d_matmul`], `crate::nn::pool::max_pool2d_shifted`).
     Composite,
 }
 
@@ -81,7 +81,7 @@ pub fn set_op_impl(choice: OpImpl) {
 }
 
 /// The process-wide implementation choice (see [`set_op_impl`]).
-pub fn op_impl() -> OpImpl {
+pub(crate) fn op_impl() -> OpImpl {
     match OP_IMPL.load(Ordering::Relaxed) {
         1 => OpImpl::Burn,
         2 => OpImpl::Composite,
@@ -91,7 +91,7 @@ pub fn op_impl() -> OpImpl {
 
 /// Whether `device` is the ndarray backend (possibly wrapped in autodiff), whose convolution
 /// and pooling kernels are the naive loops this module works around.
-pub fn is_ndarray(device: &Device) -> bool {
+pub(crate) fn is_ndarray(device: &Device) -> bool {
     #[allow(deprecated)] // ndarray is deprecated upstream but the project's default backend.
     let ndarray = Device::ndarray();
     device.clone().without_autodiff() == ndarray
@@ -99,7 +99,7 @@ pub fn is_ndarray(device: &Device) -> bool {
 
 /// The kinds of convolution [`OpImpl::Auto`] distinguishes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum ConvKind {
+pub(crate) enum ConvKind {
     /// 1×1, stride 1, no padding: a matrix product (elementwise when depthwise).
     Pointwise,
     /// `groups == C_in == C_out`, larger kernel.
@@ -130,7 +130,7 @@ impl ConvKind {
 
 /// Whether [`conv2d`] takes the composite path for a convolution of `kind` on `device` under
 /// the current [`OpImpl`].
-pub fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
+pub(crate) fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
     match op_impl() {
         OpImpl::Auto if is_ndarray(device) => device.is_autodiff() || kind != ConvKind::Depthwise,
         OpImpl::Auto => kind == ConvKind::Pointwise,
@@ -141,7 +141,7 @@ pub fn conv_uses_composite(device: &Device, kind: ConvKind) -> bool {
 
 /// How [`crate::nn::max_pool2d`] computes a stride-1 max pool.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PoolPath {
+pub(crate) enum PoolPath {
     /// The backend's own kernel.
     Burn,
     /// [`crate::nn::pool::max_pool2d_shifted`]: running maxima over shifted slices.
@@ -154,7 +154,7 @@ pub enum PoolPath {
 /// Which [`PoolPath`] [`crate::nn::max_pool2d`] takes on `device` under the current
 /// [`OpImpl`]: on the CPU backends with autodiff (training) this crate's kernel, without
 /// autodiff the shifted slices, on the GPU Burn's kernel.
-pub fn pool_path(device: &Device) -> PoolPath {
+pub(crate) fn pool_path(device: &Device) -> PoolPath {
     match op_impl() {
         OpImpl::Auto if is_cpu(device) && device.is_autodiff() => PoolPath::Kernel,
         OpImpl::Auto if is_cpu(device) => PoolPath::Shifted,
@@ -199,7 +199,7 @@ pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
 /// Whether [`conv2d`] runs depthwise and dense convolutions (dilation 1) through
 /// [`crate::nn::depthwise_kernel`] and [`crate::nn::dense_conv_kernel`]: on the CPU backends
 /// with autodiff (training) under [`OpImpl::Auto`].
-pub fn conv_uses_kernel(device: &Device) -> bool {
+pub(crate) fn conv_uses_kernel(device: &Device) -> bool {
     op_impl() == OpImpl::Auto && is_cpu(device) && device.is_autodiff()
 }
 

@@ -53,7 +53,7 @@ fn band_values() -> usize {
 /// The extension: `x` (`[N, C, H, W]`) convolved with `weight` (`[OC, C, KH, KW]`), no bias;
 /// stride and zero padding as the depthwise kernel's options.
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait DenseConvOps: Backend {
+pub(crate) trait DenseConvOps: Backend {
     /// `x` (`[N, C, H, W]`) convolved with `weight` (`[OC, C, KH, KW]`): `[N, OC, OH, OW]`.
     fn dense_conv(
         x: FloatTensor<Self>,
@@ -118,7 +118,7 @@ impl ConvKernel for Dense {
 
 /// Whether [`dense_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`) on
 /// `c` input channels with `options`: groups 1, and `kernel_fits`.
-pub fn supports(
+pub(crate) fn supports(
     c: usize,
     [h, w]: [usize; 2],
     weight: [usize; 4],
@@ -134,7 +134,7 @@ pub fn supports(
 ///
 /// # Panics
 /// If [`supports`] does not hold (as Burn's `conv2d` panics on mismatched shapes).
-pub fn dense_conv2d(
+pub(crate) fn dense_conv2d(
     x: Tensor<4>,
     weight: Tensor<4>,
     bias: Option<Tensor<1>>,

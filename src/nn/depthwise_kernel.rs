@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 /// Stride and zero padding `((top, bottom), (left, right))` of a depthwise convolution.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct DepthwiseOptions {
+pub(crate) struct DepthwiseOptions {
     /// Stride `[vertical, horizontal]`, pixels.
     pub stride: [usize; 2],
     /// Zero padding `((top, bottom), (left, right))`, pixels.
@@ -50,7 +50,7 @@ impl From<&ConvOptions<2>> for DepthwiseOptions {
 /// The extension: `x` (`[N, C, H, W]`) convolved channel by channel with `weight`
 /// (`[C, 1, KH, KW]`), no bias.
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait DepthwiseOps: Backend {
+pub(crate) trait DepthwiseOps: Backend {
     /// `x` (`[N, C, H, W]`) convolved channel by channel with `weight` (`[C, 1, KH, KW]`).
     fn depthwise_conv(
         x: FloatTensor<Self>,
@@ -187,7 +187,7 @@ impl ConvKernel for Depthwise {
 /// Whether [`depthwise_conv2d`] computes a convolution of `weight` (`[OC, C/groups, KH, KW]`)
 /// on `c` input channels with `options`: depthwise (`groups == C == OC`), and
 /// `kernel_fits`.
-pub fn supports(
+pub(crate) fn supports(
     c: usize,
     [h, w]: [usize; 2],
     weight: [usize; 4],
@@ -221,7 +221,7 @@ pub(super) fn kernel_fits(
 ///
 /// # Panics
 /// If [`supports`] does not hold (as Burn's `conv2d` panics on mismatched shapes).
-pub fn depthwise_conv2d(
+pub(crate) fn depthwise_conv2d(
     x: Tensor<4>,
     weight: Tensor<4>,
     bias: Option<Tensor<1>>,

@@ -34,7 +34,7 @@ const CHUNK: usize = 1 << 16;
 
 /// The extension: ELU of `x` with slope `alpha > 0` of the negative part.
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait EluOps: Backend {
+pub(crate) trait EluOps: Backend {
     /// ELU of `x`, element-wise: `x` where positive, `alpha·(eˣ − 1)` elsewhere.
     fn elu_fused(x: FloatTensor<Self>, alpha: f32) -> FloatTensor<Self>;
 }
@@ -86,7 +86,7 @@ impl<B: Backend, C: CheckpointStrategy> EluOps for Autodiff<B, C> {
 
 /// ELU of `x`: the fused kernel on the CPU backends for `alpha > 0` (unless
 /// [`OpImpl::Burn`] is chosen), [`super::activation::elu_composite`] elsewhere.
-pub fn elu_fused<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
+pub(crate) fn elu_fused<const D: usize>(x: Tensor<D>, alpha: f64) -> Tensor<D> {
     if op_impl() == OpImpl::Burn || !is_cpu(&x.device()) || alpha.is_nan() || alpha <= 0.0 {
         return super::activation::elu_composite(x, alpha);
     }

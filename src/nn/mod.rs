@@ -4,24 +4,24 @@
 
 pub mod activation;
 pub mod backend;
-pub mod batch_norm_kernel;
+pub(crate) mod batch_norm_kernel;
 pub mod conv;
-pub mod dense_conv_kernel;
-pub mod depthwise_kernel;
-pub mod elu_kernel;
+pub(crate) mod dense_conv_kernel;
+pub(crate) mod depthwise_kernel;
+pub(crate) mod elu_kernel;
 pub mod init;
-pub mod nhwc;
-pub mod packed_conv;
-pub mod packed_depthwise;
+pub(crate) mod nhwc;
+pub(crate) mod packed_conv;
+pub(crate) mod packed_depthwise;
 pub mod params;
 pub mod pool;
-pub mod pool_kernel;
-pub mod relu6_kernel;
+pub(crate) mod pool_kernel;
+pub(crate) mod relu6_kernel;
 pub mod resize;
-pub mod shuffle;
+pub(crate) mod shuffle;
 pub mod trace;
 pub mod weights;
-pub mod winograd;
+pub(crate) mod winograd;
 
 pub use activation::elu;
 pub use batch_norm_kernel::batch_norm;

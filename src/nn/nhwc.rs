@@ -64,7 +64,7 @@ impl NhwcView<'_> {
     }
 
     /// A compact copy.
-    pub fn to_owned(&self) -> Nhwc {
+    pub fn to_owned(self) -> Nhwc {
         let mut out = Nhwc::zeros(self.h, self.w, self.c);
         for (y, row) in out.data.chunks_exact_mut(self.w * self.c).enumerate() {
             let at = y * self.stride * self.c;
@@ -181,7 +181,7 @@ simd_fn! {
 
 simd_fn! {
     /// `acc[i] += x[i]`.
-    pub fn add_assign(acc: &mut [f32], x: &[f32]) {
+    pub(crate) fn add_assign(acc: &mut [f32], x: &[f32]) {
         for (a, &b) in acc.iter_mut().zip(x) {
             *a += b;
         }
@@ -222,7 +222,7 @@ pub fn add(a: &mut Nhwc, b: &NhwcView) {
 
 /// Max pooling with a `k×k` window (odd `k`), stride 1 and padding `k / 2` that never wins
 /// (Burn's and PyTorch's `-inf` padding): a row pass, then a column pass.
-pub fn max_pool(x: &NhwcView, k: usize) -> Nhwc {
+pub(crate) fn max_pool(x: &NhwcView, k: usize) -> Nhwc {
     let (r, c) = (k / 2, x.c);
     let mut rows = Nhwc::zeros(x.h, x.w, c);
     rows.data
@@ -278,7 +278,7 @@ pub fn resize_bilinear(x: &NhwcView, [oh, ow]: [usize; 2]) -> Nhwc {
 /// `x = n ln 2 + r`, `|r| ≤ ln 2 / 2` and `p` the degree-6 Taylor polynomial (relative error
 /// below 2e-7); `x` is clamped to [−87, 88], where `eˣ` is a normal `f32`.
 #[inline(always)]
-pub fn exp(x: f32) -> f32 {
+pub(crate) fn exp(x: f32) -> f32 {
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
     // Adding 1.5·2²³ rounds to the nearest integer n in the low mantissa bits: no rounding
@@ -297,6 +297,7 @@ pub fn exp(x: f32) -> f32 {
 }
 
 /// An NCHW tensor of one image (batch 1) as [`Nhwc`].
+#[cfg(test)]
 pub fn from_nchw(data: &[f32], [c, h, w]: [usize; 3]) -> Nhwc {
     let mut out = Nhwc::zeros(h, w, c);
     for ch in 0..c {

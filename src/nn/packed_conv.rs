@@ -25,7 +25,9 @@ use burn::nn::conv::Conv2d;
 use burn::prelude::*;
 use rayon::prelude::*;
 
-pub use super::nhwc::{Activation, Nhwc, NhwcView, activate, from_nchw, to_nchw};
+#[cfg(test)]
+use super::nhwc::from_nchw;
+pub use super::nhwc::{Activation, Nhwc, NhwcView, activate, to_nchw};
 
 /// Below this depth (k·c) per kernel row, one product over an im2col of all taps is faster.
 const SMALL_K: usize = 32;
@@ -33,7 +35,7 @@ const SMALL_K: usize = 32;
 /// Buffers one convolution reuses from call to call: the padded (and space-to-depth) source,
 /// whose zero border is written once per input size, the wide output and the im2col matrix.
 #[derive(Debug, Default)]
-pub struct Scratch {
+pub(crate) struct Scratch {
     /// The input size and convolution (`[h, w, c, k, stride, padding, winograd]`) `src` was
     /// laid out for: a buffer is reused only by the same convolution on the same size.
     layout: Option<[usize; 7]>,
@@ -71,7 +73,7 @@ pub enum PackError {
 
 /// A convolution's weights laid out for [`PackedConv::forward`].
 #[derive(Debug, Clone)]
-pub struct PackedConv {
+pub(crate) struct PackedConv {
     cin: usize,
     cout: usize,
     /// Kernel size after space-to-depth (stride 2: k/2).
@@ -92,7 +94,7 @@ pub struct PackedConv {
 
 /// The shape of a square convolution.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ConvGeometry {
+pub(crate) struct ConvGeometry {
     /// Output channels.
     pub cout: usize,
     /// Input channels per group.
@@ -109,7 +111,7 @@ pub struct ConvGeometry {
 
 /// A Burn convolution's weights (row-major `[cout, cin / groups, k, k]`), bias (zeros
 /// without one) and shape; square kernels, equal strides and padding, no dilation.
-pub fn read_conv(conv: &Conv2d) -> Result<(Vec<f32>, Vec<f32>, ConvGeometry), PackError> {
+pub(crate) fn read_conv(conv: &Conv2d) -> Result<(Vec<f32>, Vec<f32>, ConvGeometry), PackError> {
     let [cout, cin, kh, kw] = conv.weight.dims();
     let [sh, sw] = conv.stride;
     let [dh, dw] = conv.dilation;
@@ -148,7 +150,7 @@ pub fn read_conv(conv: &Conv2d) -> Result<(Vec<f32>, Vec<f32>, ConvGeometry), Pa
 /// Folds an inference-mode batch normalisation into the convolution before it:
 /// `γ (w·x + b − μ) / √(σ² + ε) + β` is a convolution with weights `w·s` and bias
 /// `(b − μ)·s + β`, `s = γ / √(σ² + ε)` per output channel.
-pub fn fold_batch_norm(
+pub(crate) fn fold_batch_norm(
     weight: &mut [f32],
     bias: &mut [f32],
     bn: &burn::nn::BatchNorm,
@@ -267,11 +269,6 @@ impl PackedConv {
             bias: bias.to_vec(),
             activation,
         })
-    }
-
-    /// Number of output channels.
-    pub fn out_channels(&self) -> usize {
-        self.cout
     }
 
     /// `dst (+)= lhs · rhs` with `dst` `[rows, cout]`, `lhs` `[rows, depth]` of row stride

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 /// A depthwise convolution (one filter per channel) with its bias and activation.
 #[derive(Debug, Clone)]
-pub struct PackedDepthwise {
+pub(crate) struct PackedDepthwise {
     c: usize,
     k: usize,
     stride: usize,

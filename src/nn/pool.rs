@@ -8,14 +8,14 @@
 //! 4-D indexing, and inference takes a window loop that is not much faster. That made pooling
 //! about a third of an SDFCNN training step on ndarray.
 //!
-//! [`max_pool2d_shifted`] computes the same pooling from `max_pair` of slices: the padded input
+//! `max_pool2d_shifted` computes the same pooling from `max_pair` of slices: the padded input
 //! is flattened to `[N, C, Hp·Wp]`, a window of `k` along a row is a maximum over shifts by
 //! `0..k`, and along a column over shifts by multiples of `Wp`, so every slice is a long
 //! contiguous run. Each 1-D window maximum is built by doubling (`k = 5`: `max(x, x≫1)`, then
 //! `≫2`, then an overlapping `≫1`), three `max_pair`s per axis instead of four. Its autodiff
 //! backward is masks and slice assignments.
 //!
-//! Training (autodiff on a CPU backend) takes [`super::pool_kernel`] instead, whose backward
+//! Training (autodiff on a CPU backend) takes `super::pool_kernel` instead, whose backward
 //! allocates nothing per slice; the slices serve the CPU backends without autodiff (Burn's
 //! SDFCNN path; the packed network pools in NHWC) and, on ndarray, windows the kernel does not
 //! take.
@@ -31,9 +31,9 @@ use burn::tensor::ops::PadMode;
 use super::conv::{PoolPath, is_ndarray, padding_pairs, pool_path};
 use super::pool_kernel::{MAX_KERNEL, max_pool2d_same};
 
-/// `pool.forward(x)`, computed as [`pool_path`] says for `x`'s device when the pool has
-/// stride 1, dilation 1 and no ceil mode (and, for [`PoolPath::Kernel`], an odd square window
-/// of at most [`MAX_KERNEL`] with `k/2` padding on every side); by Burn otherwise.
+/// `pool.forward(x)`, computed as `pool_path` says for `x`'s device when the pool has
+/// stride 1, dilation 1 and no ceil mode (and, for `PoolPath::Kernel`, an odd square window
+/// of at most `MAX_KERNEL` with `k/2` padding on every side); by Burn otherwise.
 pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
     let simple = pool.stride == [1, 1] && pool.dilation == [1, 1] && !pool.ceil_mode;
     let path = pool_path(&x.device());
@@ -59,7 +59,7 @@ pub fn max_pool2d(pool: &MaxPool2d, x: Tensor<4>) -> Tensor<4> {
 /// # Panics
 /// If the window is empty or larger than the padded input, or a padding is not smaller than
 /// the window (an all-padding window).
-pub fn max_pool2d_shifted(
+pub(crate) fn max_pool2d_shifted(
     x: Tensor<4>,
     [kh, kw]: [usize; 2],
     [(top, bottom), (left, right)]: [(usize, usize); 2],

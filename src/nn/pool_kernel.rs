@@ -27,12 +27,12 @@ use super::nhwc::simd_fn;
 use rayon::prelude::*;
 
 /// The largest window: offsets in a `k×k` window must fit a byte.
-pub const MAX_KERNEL: usize = 15;
+pub(crate) const MAX_KERNEL: usize = 15;
 
 /// The extension: `x` (`[N, C, H, W]`) max-pooled over `kernel × kernel` windows, stride 1,
 /// padding `kernel / 2` (padding never wins).
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait SamePoolOps: Backend {
+pub(crate) trait SamePoolOps: Backend {
     /// Max-pools `x` over `kernel × kernel` windows, output the same size as the input.
     fn max_pool_same(x: FloatTensor<Self>, kernel: usize) -> FloatTensor<Self>;
 }
@@ -85,7 +85,7 @@ impl<B: Backend, C: CheckpointStrategy> SamePoolOps for Autodiff<B, C> {
 ///
 /// # Panics
 /// On a kernel that is even or larger than [`MAX_KERNEL`], or a GPU tensor.
-pub fn max_pool2d_same(x: Tensor<4>, kernel: usize) -> Tensor<4> {
+pub(crate) fn max_pool2d_same(x: Tensor<4>, kernel: usize) -> Tensor<4> {
     assert!(
         kernel % 2 == 1 && kernel <= MAX_KERNEL,
         "max_pool2d_same: kernel {kernel} must be odd and at most {MAX_KERNEL}"

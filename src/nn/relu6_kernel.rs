@@ -30,7 +30,7 @@ const CHUNK: usize = 1 << 16;
 
 /// The extension: ReLU6 of `x`.
 #[backend_extension(Flex, NdArray, Autodiff)]
-pub trait Relu6Ops: Backend {
+pub(crate) trait Relu6Ops: Backend {
     /// `min(max(x, 0), 6)` element by element.
     fn relu6_fused(x: FloatTensor<Self>) -> FloatTensor<Self>;
 }

@@ -31,7 +31,7 @@ pub struct Taps {
 ///
 /// # Panics
 /// If `input` or `output` is zero (an empty axis cannot be interpolated).
-pub fn taps(dst: usize, input: usize, output: usize) -> Taps {
+pub(crate) fn taps(dst: usize, input: usize, output: usize) -> Taps {
     assert!(input > 0 && output > 0, "bilinear resize of an empty axis");
     if input == output {
         return Taps {
@@ -55,8 +55,8 @@ pub fn taps(dst: usize, input: usize, output: usize) -> Taps {
 }
 
 /// Source taps of a continuous (sub-pixel) output coordinate `pos`, extending
-/// [`taps`] between pixel centres: at integer `pos` they agree (except when
-/// `input == output`, where [`taps`] is the identity and this interpolates too).
+/// `taps` between pixel centres: at integer `pos` they agree (except when
+/// `input == output`, where `taps` is the identity and this interpolates too).
 pub fn taps_at(pos: f32, input: usize, output: usize) -> Taps {
     assert!(input > 0 && output > 0, "bilinear resize of an empty axis");
     let scale = input as f32 / output as f32;
@@ -73,7 +73,7 @@ pub fn taps_at(pos: f32, input: usize, output: usize) -> Taps {
 }
 
 /// Row-major `[output, input]` interpolation matrix of one axis.
-pub fn interpolation_matrix(input: usize, output: usize) -> Vec<f32> {
+pub(crate) fn interpolation_matrix(input: usize, output: usize) -> Vec<f32> {
     let mut m = vec![0.0; output * input];
     for (dst, row) in m.chunks_exact_mut(input).enumerate() {
         let t = taps(dst, input, output);

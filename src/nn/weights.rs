@@ -46,7 +46,7 @@ pub fn save_atomic<M: Module>(module: M, path: &Path) -> Result<()> {
 
 /// Loads weights saved in any float precision into `module` (converted to the
 /// module's own precision). `what` names the network for the error message.
-pub fn load_into<M: Module>(module: M, path: &Path, what: &str, config: &Path) -> Result<M> {
+pub(crate) fn load_into<M: Module>(module: M, path: &Path, what: &str, config: &Path) -> Result<M> {
     let record = burn::store::ModuleRecord::load(path)
         .map_err(|e| Error::invalid(path, format!("cannot read weights: {e}")))?;
     let module = module
@@ -66,7 +66,7 @@ pub fn load_into<M: Module>(module: M, path: &Path, what: &str, config: &Path) -
 
 /// Refuses weights holding a NaN or an infinity (a training run that diverged, a damaged
 /// file): the error names the file and the first tensors, by module path.
-pub fn check_finite_weights<M: Module>(module: &M, path: &Path) -> Result<()> {
+pub(crate) fn check_finite_weights<M: Module>(module: &M, path: &Path) -> Result<()> {
     struct Check {
         stack: Vec<String>,
         bad: Vec<String>,

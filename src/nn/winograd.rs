@@ -56,7 +56,7 @@ const G2: [[f32; 2]; N] = [
 
 /// A stride-1 `k×k` convolution (`k` 2 or 3) with its kernels transformed once.
 #[derive(Debug, Clone)]
-pub struct Winograd {
+pub(crate) struct Winograd {
     k: usize,
     /// Output tile side: `N − k + 1`.
     m: usize,
@@ -112,6 +112,7 @@ impl Winograd {
     }
 
     /// Output tile side (4 for 3×3 kernels, 5 for 2×2).
+    #[cfg(test)]
     pub fn tile(&self) -> usize {
         self.m
     }

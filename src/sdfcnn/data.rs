@@ -12,7 +12,7 @@
 //! ([`super::focal`]), zoom included.
 //!
 //! Augmentation is reproducible: sample `i` of batch `b` of epoch `e` draws from a generator
-//! seeded by the `i`-th number of [`crate::training::batch_rng`]`(seed, e, b)`, whatever
+//! seeded by the `i`-th number of `crate::training::batch_rng``(seed, e, b)`, whatever
 //! thread decodes it, so a resumed run sees exactly the batches of an uninterrupted one.
 
 use burn::prelude::*;
@@ -185,7 +185,7 @@ impl SegDepthData {
 
 /// A batch on a device.
 #[derive(Debug, Clone)]
-pub struct SdfcnnBatch {
+pub(crate) struct SdfcnnBatch {
     /// `[N, 3, H, W]` RGB in `[0, 1]`.
     pub images: Tensor<4>,
     /// `[N, H, W]` class indices, 255 = void.

@@ -24,14 +24,14 @@ pub const NYU_FOCAL: f64 = NYU_FX / 640.0;
 
 /// NYUv2's focal length holds for images of its 640-px-wide camera and for crops of them
 /// (the official crop is 561-625 px wide); other widths need their own camera.
-pub fn nyu_fx_fits(width: u32) -> bool {
+pub(crate) fn nyu_fx_fits(width: u32) -> bool {
     (500..=640).contains(&width)
 }
 
 /// The factor that turns metric depth seen by a camera of focal length `fx` pixels, in an image
 /// `width` pixels wide zoomed by `zoom` (crop width = width / zoom), into the depth a camera of
 /// focal length `canonical` image widths would see: `canonical / (fx · zoom / width)`.
-pub fn to_canonical(canonical: f64, fx: f64, width: f64, zoom: f64) -> f64 {
+pub(crate) fn to_canonical(canonical: f64, fx: f64, width: f64, zoom: f64) -> f64 {
     canonical * width / (fx * zoom)
 }
 

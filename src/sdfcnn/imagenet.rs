@@ -3,7 +3,7 @@
 //! file with `burn::store`. The paper, like Light-Weight RefineNet, starts its encoder from
 //! ImageNet; the decoder and the judge layers keep their random initialisation.
 //!
-//! The name mapping lives here, in one table ([`torchvision_names`]), apart from the
+//! The name mapping lives here, in one table (`torchvision_names`), apart from the
 //! architecture (`model.rs`):
 //!
 //! | SDFCNN (Table 13) | torchvision `features.N` |
@@ -49,7 +49,7 @@ pub struct ImagenetLoad {
 }
 
 /// `(SDFCNN path, torchvision name)` of every encoder tensor that has an ImageNet value.
-pub fn torchvision_names() -> Vec<(String, String)> {
+pub(crate) fn torchvision_names() -> Vec<(String, String)> {
     let mut out = Vec::new();
     let mut conv_bn = |ours: &str, conv: &str, bn: &str| {
         out.push((format!("{ours}.conv.weight"), format!("{conv}.weight")));

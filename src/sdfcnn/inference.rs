@@ -27,7 +27,7 @@ use crate::nn::trainable_params;
 use crate::plot::{Panel, panels_figure};
 use crate::training::RunDir;
 
-/// Colour image of a label map ([`crate::classes::colorize`]).
+/// Colour image of a label map (`crate::classes::colorize`).
 pub fn colorize_labels(labels: &LabelImage) -> RgbImage {
     RgbImage::from_fn(labels.width, labels.height, |x, y| {
         image::Rgb(crate::classes::colorize(labels.get(x, y)))
@@ -122,7 +122,7 @@ pub fn save_figure(
 
 /// Loads `model_path` into `model` (f16 or f32 records are cast to the model's float type). A
 /// record that does not fit is an error naming the checkpoint and the config it was read with.
-pub fn load_weights(model: Sdfcnn, model_path: &Path, config_path: &Path) -> Result<Sdfcnn> {
+pub(crate) fn load_weights(model: Sdfcnn, model_path: &Path, config_path: &Path) -> Result<Sdfcnn> {
     let record = ModuleRecord::load(model_path)
         .map_err(|e| Error::invalid(model_path, format!("cannot read the checkpoint: {e}")))?;
     let model = model
@@ -141,7 +141,7 @@ pub fn load_weights(model: Sdfcnn, model_path: &Path, config_path: &Path) -> Res
 }
 
 /// Locates `model.bpk` and its `config.toml` from a file, checkpoint folder or run folder.
-pub fn locate_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
+pub(crate) fn locate_checkpoint(path: &Path) -> Result<(PathBuf, PathBuf)> {
     let model = if path.is_file() {
         path.to_path_buf()
     } else if path.join("model.bpk").is_file() {
@@ -183,7 +183,7 @@ pub fn read_network_config(config_path: &Path) -> Result<SdfcnnConfig> {
 }
 
 /// The `[network]` section of a checkpoint's `config.toml`, with `depth_focal`.
-pub fn read_network_section(config_path: &Path) -> Result<NetworkConfig> {
+pub(crate) fn read_network_section(config_path: &Path) -> Result<NetworkConfig> {
     let text = crate::io::read_text(config_path)?;
     let table: toml::Table =
         toml::from_str(&text).map_err(|e| crate::camera::toml_error(config_path, &text, e))?;

@@ -213,7 +213,7 @@ pub fn depth_loss(pred: Tensor<4>, gt: Tensor<4>, kind: DepthLoss, berhu_ratio: 
 }
 
 /// Neighbour strides of the gradient-matching term (MegaDepth uses four scales).
-pub const GRADIENT_STRIDES: [usize; 4] = [1, 2, 4, 8];
+pub(crate) const GRADIENT_STRIDES: [usize; 4] = [1, 2, 4, 8];
 
 /// Depth below which a prediction is clamped before its logarithm (metres; the depth head is
 /// linear and may go negative early in training).
@@ -224,7 +224,11 @@ const MIN_LOG_DEPTH: f64 = 0.01;
 /// `|R(p + s) − R(p)|` over the horizontal and vertical pixel pairs at stride `s` whose two
 /// ends both have a depth, averaged over the `strides` that fit the image. 0 when no pair has
 /// two valid ends.
-pub fn gradient_matching_loss(pred: Tensor<4>, gt: Tensor<4>, strides: &[usize]) -> Tensor<1> {
+pub(crate) fn gradient_matching_loss(
+    pred: Tensor<4>,
+    gt: Tensor<4>,
+    strides: &[usize],
+) -> Tensor<1> {
     let valid = gt.clone().greater_elem(0.0);
     let r = (pred.clamp_min(MIN_LOG_DEPTH).log() - gt.clamp_min(MIN_LOG_DEPTH).log())
         .mask_fill(valid.clone().bool_not(), 0.0);
@@ -254,7 +258,7 @@ pub fn gradient_matching_loss(pred: Tensor<4>, gt: Tensor<4>, strides: &[usize])
 
 /// Source index of each of `dst` output samples when resizing an axis of `src` samples with
 /// nearest neighbour at pixel centres (`floor((i + ½)·src / dst)`).
-pub fn nearest_indices(src: usize, dst: usize) -> Vec<i64> {
+pub(crate) fn nearest_indices(src: usize, dst: usize) -> Vec<i64> {
     (0..dst)
         .map(|i| (((2 * i + 1) * src) / (2 * dst)).min(src.saturating_sub(1)) as i64)
         .collect()
@@ -265,7 +269,7 @@ fn index_tensor(src: usize, dst: usize, device: &Device) -> Tensor<1, Int> {
 }
 
 /// Nearest-neighbour resize of a label batch `[N, H, W]` to `[h, w]`.
-pub fn resize_nearest_labels(labels: Tensor<3, Int>, [h, w]: [usize; 2]) -> Tensor<3, Int> {
+pub(crate) fn resize_nearest_labels(labels: Tensor<3, Int>, [h, w]: [usize; 2]) -> Tensor<3, Int> {
     let [_, sh, sw] = labels.dims();
     let device = labels.device();
     let labels = if sh == h {
@@ -282,7 +286,7 @@ pub fn resize_nearest_labels(labels: Tensor<3, Int>, [h, w]: [usize; 2]) -> Tens
 
 /// Nearest-neighbour resize of `[N, C, H, W]` to `[h, w]` (depth targets: no blending of
 /// missing and valid pixels).
-pub fn resize_nearest(x: Tensor<4>, [h, w]: [usize; 2]) -> Tensor<4> {
+pub(crate) fn resize_nearest(x: Tensor<4>, [h, w]: [usize; 2]) -> Tensor<4> {
     let [_, _, sh, sw] = x.dims();
     let device = x.device();
     let x = if sh == h {

@@ -1,7 +1,7 @@
 //! SDFCNN inference on the CPU with packed channels-last layers: the network of
 //! [`Sdfcnn::forward`] (Table 13) with every batch normalisation folded into the convolution
-//! before it, dense convolutions as matrix products ([`crate::nn::packed_conv`]), depthwise
-//! ones channel-vectorised ([`crate::nn::packed_depthwise`]), and the labels taken by an argmax
+//! before it, dense convolutions as matrix products (`crate::nn::packed_conv`), depthwise
+//! ones channel-vectorised (`crate::nn::packed_depthwise`), and the labels taken by an argmax
 //! fused with the output's bilinear upsampling (the 40 full-resolution logit maps are never
 //! stored). [`super::SdfcnnPredictor`] uses it on the CPU backends; GPUs keep Burn's kernels.
 

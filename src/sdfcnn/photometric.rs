@@ -8,7 +8,7 @@
 //! `I_s→t`. The loss per pixel is
 //!
 //! * `pe(a, b) = α (1 − SSIM(a, b)) / 2 + (1 − α) |a − b|`, α = 0.85, SSIM over 3x3 windows
-//!   ([`photometric_error`]);
+//!   (`photometric_error`);
 //! * the **minimum** over the sources of `pe(I_s→t, I_t)` (a pixel occluded in one source is
 //!   judged by the other);
 //! * **auto-masking**: the unwarped sources' `pe(I_s, I_t)` join that minimum, so a pixel that
@@ -16,7 +16,7 @@
 //!   textureless wall) is judged by that identity error, which has no gradient to the depth;
 //!
 //! averaged over the pixels, plus `smoothness` times the edge-aware smoothness of the
-//! mean-normalised inverse depth ([`smoothness_loss`]). Unlike Monodepth2 it is taken at the
+//! mean-normalised inverse depth (`smoothness_loss`). Unlike Monodepth2 it is taken at the
 //! input resolution only, and the windows at the border average the pixels inside rather than
 //! reflect them. Because the poses are metric (a sensor's, or a monocular run scaled by
 //! `--camera-height`), the depth this teaches is metric too.
@@ -28,7 +28,7 @@ use burn::tensor::ops::{
 };
 
 /// SSIM's weight in the photometric error (Monodepth2's α).
-pub const SSIM_WEIGHT: f64 = 0.85;
+pub(crate) const SSIM_WEIGHT: f64 = 0.85;
 
 /// Added to the identity errors so that a tie goes to the warped source.
 const IDENTITY_OFFSET: f64 = 1e-5;
@@ -86,7 +86,7 @@ fn window_mean(x: Tensor<4>) -> Tensor<4> {
 
 /// Monodepth2's photometric error of two images `[N, C, H, W]` in `[0, 1]`, per pixel
 /// `[N, 1, H, W]`: `α (1 − SSIM) / 2 + (1 − α) |a − b|`, averaged over the channels.
-pub fn photometric_error(a: Tensor<4>, b: Tensor<4>) -> Tensor<4> {
+pub(crate) fn photometric_error(a: Tensor<4>, b: Tensor<4>) -> Tensor<4> {
     const C1: f64 = 0.01 * 0.01;
     const C2: f64 = 0.03 * 0.03;
     let l1 = (a.clone() - b.clone()).abs().mean_dim(1);
@@ -103,7 +103,7 @@ pub fn photometric_error(a: Tensor<4>, b: Tensor<4>) -> Tensor<4> {
 /// The per-pixel minimum reprojection error with auto-masking, averaged over the pixels: the
 /// target `[N, 3, H, W]`, its metric depth `[N, 1, H, W]`, and each source image with its
 /// target-to-source pose `[N, 12]`; `k` as in [`warp`].
-pub fn reprojection_loss(
+pub(crate) fn reprojection_loss(
     target: Tensor<4>,
     depth: Tensor<4>,
     sources: &[(Tensor<4>, Tensor<2>)],
@@ -120,7 +120,7 @@ pub fn reprojection_loss(
 
 /// Edge-aware smoothness of the mean-normalised inverse depth (Monodepth2's): its horizontal
 /// and vertical differences, each weighted by `exp(−|∂I|)` of the image `[N, 3, H, W]`.
-pub fn smoothness_loss(depth: Tensor<4>, image: Tensor<4>) -> Tensor<1> {
+pub(crate) fn smoothness_loss(depth: Tensor<4>, image: Tensor<4>) -> Tensor<1> {
     let [n, _, h, w] = depth.dims();
     let disp = depth.clamp_min(MIN_DEPTH).recip();
     let disp = disp.clone() / disp.mean_dim(2).mean_dim(3);

@@ -83,7 +83,7 @@ struct Recording {
 
 /// Every `[data] video` recording, opened and checked.
 #[derive(Debug, Clone, Default)]
-pub struct VideoData {
+pub(crate) struct VideoData {
     recordings: Vec<Recording>,
     /// (recording, triple) of every sample.
     index: Vec<(usize, usize)>,
@@ -92,7 +92,7 @@ pub struct VideoData {
 
 /// One sample on the host: the target and its two sources, `[3, H, W]` RGB in `[0, 1]` each.
 #[derive(Debug, Clone)]
-pub struct VideoSample {
+pub(crate) struct VideoSample {
     /// Target, previous source, next source.
     pub images: [Vec<f32>; 3],
     /// Target-to-source transforms, rotation row-major then translation (metres).

@@ -96,7 +96,7 @@ pub fn points_from_depth(
 /// an inner box of the undistorted border. Projecting a point outside it is
 /// unreliable with strong radial distortion (the polynomial folds back).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ViewBounds {
+pub(crate) struct ViewBounds {
     /// Open range `(min, max)` of `X/Z`.
     pub x: (f64, f64),
     /// Open range `(min, max)` of `Y/Z`.

@@ -19,19 +19,19 @@ pub fn hash(mut x: u32) -> u32 {
 
 /// Hash of several integers.
 #[inline]
-pub fn hash2(a: u32, b: u32) -> u32 {
+pub(crate) fn hash2(a: u32, b: u32) -> u32 {
     hash(a ^ hash(b.wrapping_add(0x9e37_79b9)))
 }
 
 /// Hash of three integers.
 #[inline]
-pub fn hash3(a: u32, b: u32, c: u32) -> u32 {
+pub(crate) fn hash3(a: u32, b: u32, c: u32) -> u32 {
     hash2(hash2(a, b), c)
 }
 
 /// Hash of four integers.
 #[inline]
-pub fn hash4(a: u32, b: u32, c: u32, d: u32) -> u32 {
+pub(crate) fn hash4(a: u32, b: u32, c: u32, d: u32) -> u32 {
     hash2(hash3(a, b, c), d)
 }
 
@@ -44,7 +44,7 @@ pub fn unit(h: u32) -> f32 {
 /// An approximately standard-normal value from one hash (Irwin-Hall sum of
 /// four 8-bit uniforms, rescaled to unit variance; tails end at ±3.46).
 #[inline]
-pub fn gauss(h: u32) -> f32 {
+pub(crate) fn gauss(h: u32) -> f32 {
     let s = (h & 0xff) + ((h >> 8) & 0xff) + ((h >> 16) & 0xff) + (h >> 24);
     // Each byte is uniform on 0..=255: mean 127.5, variance (256² - 1) / 12.
     (s as f32 - 510.0) * (1.0 / 147.80)
@@ -59,7 +59,7 @@ pub fn floor(x: f32) -> f32 {
 }
 
 /// Fast `floor` and a fractional part in `[0, 1)` as methods.
-pub trait FastFloor {
+pub(crate) trait FastFloor {
     /// [`floor`] of `self`.
     fn ff(self) -> Self;
     /// `self - floor(self)`, in `[0, 1)`.
@@ -83,7 +83,7 @@ fn smooth(t: f32) -> f32 {
 }
 
 /// Smooth 2D value noise in `[0, 1]`, lattice spacing 1.
-pub fn noise2(x: f32, y: f32, seed: u32) -> f32 {
+pub(crate) fn noise2(x: f32, y: f32, seed: u32) -> f32 {
     let (fx, fy) = (floor(x), floor(y));
     let (ix, iy) = (fx as i32 as u32, fy as i32 as u32);
     let (tx, ty) = (smooth(x - fx), smooth(y - fy));
@@ -101,7 +101,7 @@ pub fn noise2(x: f32, y: f32, seed: u32) -> f32 {
 }
 
 /// Smooth 1D value noise in `[0, 1]`.
-pub fn noise1(x: f32, seed: u32) -> f32 {
+pub(crate) fn noise1(x: f32, seed: u32) -> f32 {
     let fx = floor(x);
     let ix = fx as i32 as u32;
     let t = smooth(x - fx);
@@ -112,7 +112,7 @@ pub fn noise1(x: f32, seed: u32) -> f32 {
 
 /// Fractal sum of `octaves` noise layers (each twice the frequency, half the
 /// amplitude), normalised to `[0, 1]`.
-pub fn fbm2(x: f32, y: f32, seed: u32, octaves: u32) -> f32 {
+pub(crate) fn fbm2(x: f32, y: f32, seed: u32, octaves: u32) -> f32 {
     let (mut sum, mut amp, mut norm, mut f) = (0.0, 1.0, 0.0, 1.0);
     for o in 0..octaves {
         sum += amp * noise2(x * f, y * f, seed.wrapping_add(o * 1013));
@@ -124,7 +124,7 @@ pub fn fbm2(x: f32, y: f32, seed: u32, octaves: u32) -> f32 {
 }
 
 /// Fractal 1D noise in `[0, 1]`.
-pub fn fbm1(x: f32, seed: u32, octaves: u32) -> f32 {
+pub(crate) fn fbm1(x: f32, seed: u32, octaves: u32) -> f32 {
     let (mut sum, mut amp, mut norm, mut f) = (0.0, 1.0, 0.0, 1.0);
     for o in 0..octaves {
         sum += amp * noise1(x * f, seed.wrapping_add(o * 7919));
@@ -136,7 +136,7 @@ pub fn fbm1(x: f32, seed: u32, octaves: u32) -> f32 {
 }
 
 /// `sin` and `cos` of `x` (radians) to about 1e-16, from basic operations.
-pub fn sin_cos(x: f64) -> (f64, f64) {
+pub(crate) fn sin_cos(x: f64) -> (f64, f64) {
     if !x.is_finite() {
         return (f64::NAN, f64::NAN);
     }
@@ -164,7 +164,7 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
 }
 
 /// `atan(x)` from basic operations (argument halving, then a short series).
-pub fn atan(x: f64) -> f64 {
+pub(crate) fn atan(x: f64) -> f64 {
     if x.is_nan() {
         return f64::NAN;
     }
@@ -184,7 +184,7 @@ pub fn atan(x: f64) -> f64 {
 }
 
 /// `atan2(y, x)` in `(-pi, pi]`.
-pub fn atan2(y: f64, x: f64) -> f64 {
+pub(crate) fn atan2(y: f64, x: f64) -> f64 {
     if x > 0.0 {
         atan(y / x)
     } else if x < 0.0 {

@@ -146,7 +146,7 @@ impl Solid {
 
 /// The geometry of a solid in the compact form the ray caster works on.
 #[derive(Debug, Clone, Copy)]
-pub struct Prim {
+pub(crate) struct Prim {
     center: V3,
     half: V3,
     /// World-space half extents.
@@ -310,7 +310,7 @@ struct Node {
 
 /// Bounding-volume hierarchy (surface-area heuristic) over a list of solids.
 #[derive(Debug, Clone, Default)]
-pub struct Bvh {
+pub(crate) struct Bvh {
     nodes: Vec<Node>,
     order: Vec<u32>,
     /// The primitives in leaf order.
@@ -324,6 +324,7 @@ fn area(min: &V3, max: &V3) -> f32 {
 
 impl Bvh {
     /// Builds the hierarchy.
+    #[cfg(test)]
     pub fn build(solids: &[Solid]) -> Self {
         Self::build_offset(solids, 0)
     }
@@ -473,6 +474,7 @@ impl Bvh {
     }
 
     /// Whether anything lies on the ray with `t` in `(tmin, tmax)` (shadow rays).
+    #[cfg(test)]
     pub fn occluded(&self, ray: &Ray, tmin: f32, tmax: f32) -> bool {
         let mut stack = [0u32; 64];
         let mut sp = 0;

@@ -1,12 +1,12 @@
 //! Synthetic indoor RGB-D sequences with exact depth, NYU40 labels and camera
 //! poses, standing in for TUM RGB-D and NYUv2 where they cannot be downloaded.
 //!
-//! Procedural rooms ([`scene`], [`furniture`], [`texture`]) are ray cast
+//! Procedural rooms ([`scene`], `furniture`, `texture`) are ray cast
 //! ([`render`]) along planned camera motions ([`trajectory`]), turned into
 //! sensor-like images ([`sensor`]) and written ([`writer`]). The same seed and
 //! configuration give byte-identical files on every machine: all randomness is
 //! ChaCha8 or integer hashing, and trigonometry is done with basic IEEE
-//! operations ([`detmath`]).
+//! operations (`detmath`).
 //!
 //! # Output layout (`OUT/`)
 //!
@@ -38,14 +38,14 @@
 //! sequence frames), `output.nyu_views_per_scene` per scene.
 
 pub mod config;
-pub mod detmath;
-pub mod furniture;
-pub mod geom;
+pub(crate) mod detmath;
+pub(crate) mod furniture;
+pub(crate) mod geom;
 pub mod render;
 pub mod scene;
 pub mod sensor;
-pub mod shadow;
-pub mod texture;
+pub(crate) mod shadow;
+pub(crate) mod texture;
 pub mod trajectory;
 pub mod writer;
 
@@ -104,7 +104,7 @@ pub struct Summary {
 }
 
 /// Frame timestamps as written (6 decimals) and as numbers.
-pub fn frame_stamps(cfg: &SynthConfig) -> (Vec<String>, Vec<f64>) {
+pub(crate) fn frame_stamps(cfg: &SynthConfig) -> (Vec<String>, Vec<f64>) {
     let names: Vec<String> = (0..cfg.frames)
         .map(|k| format!("{:.6}", cfg.start_time + k as f64 / cfg.fps))
         .collect();
@@ -113,7 +113,7 @@ pub fn frame_stamps(cfg: &SynthConfig) -> (Vec<String>, Vec<f64>) {
 }
 
 /// Times (seconds from the first frame) of the renders averaged into frame `k`.
-pub fn blur_offsets(cfg: &SynthConfig) -> Vec<f64> {
+pub(crate) fn blur_offsets(cfg: &SynthConfig) -> Vec<f64> {
     let b = &cfg.blur;
     if !b.enabled || b.samples <= 1 {
         return vec![0.0];
@@ -343,7 +343,7 @@ const STREAM_ATTEMPTS: usize = 8;
 /// train` source's `path`): a fresh room from `seed` seen by `camera` (e.g. with a random
 /// focal length), one random view of it, rendered as [`generate`]'s NYU-layout views are. A
 /// room without a valid view is replaced by the next seed's.
-pub fn stream_view(cfg: &SynthConfig, camera: &Camera, seed: u64) -> Result<FrameFiles> {
+pub(crate) fn stream_view(cfg: &SynthConfig, camera: &Camera, seed: u64) -> Result<FrameFiles> {
     let mut last = None;
     for attempt in 0..STREAM_ATTEMPTS {
         let seed = scene_seed(seed, attempt);

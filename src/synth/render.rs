@@ -26,14 +26,14 @@ pub struct Px {
     pub cos: f32,
     /// NYU40 class of the surface hit (void where the ray hit nothing).
     pub label: u8,
-    /// [`FLAG_NO_DEPTH`], [`FLAG_DARK`].
+    /// `FLAG_NO_DEPTH`, `FLAG_DARK`.
     pub flags: u8,
 }
 
 /// The surface gives no depth reading (glass).
-pub const FLAG_NO_DEPTH: u8 = 1;
+pub(crate) const FLAG_NO_DEPTH: u8 = 1;
 /// The surface is very dark (IR absorbing).
-pub const FLAG_DARK: u8 = 2;
+pub(crate) const FLAG_DARK: u8 = 2;
 
 /// A rendered image, row-major.
 #[derive(Debug, Clone)]

@@ -13,7 +13,7 @@ use image::{GrayImage, Luma, RgbImage};
 use rayon::prelude::*;
 
 /// Auto-exposure gain at time `t` (seconds): a slow smooth drift around 1.
-pub fn exposure_gain(cfg: &SensorConfig, seed: u32, t: f64) -> f32 {
+pub(crate) fn exposure_gain(cfg: &SensorConfig, seed: u32, t: f64) -> f32 {
     let v = cfg.exposure_variation as f32;
     if v == 0.0 {
         return 1.0;
@@ -25,7 +25,7 @@ pub fn exposure_gain(cfg: &SensorConfig, seed: u32, t: f64) -> f32 {
 
 /// The gain that brings the mean linear luminance of an image to 0.2 (about
 /// 45 % grey after gamma), like a camera's auto-exposure; within `[0.3, 4]`.
-pub fn auto_exposure(rgb: &[[f32; 3]]) -> f32 {
+pub(crate) fn auto_exposure(rgb: &[[f32; 3]]) -> f32 {
     let (mut sum, mut n) = (0.0f64, 0usize);
     for p in rgb.iter().step_by(7) {
         sum += (0.3 * p[0] + 0.59 * p[1] + 0.11 * p[2]).min(2.0) as f64;
@@ -36,7 +36,7 @@ pub fn auto_exposure(rgb: &[[f32; 3]]) -> f32 {
 }
 
 /// The 8-bit colour image of linear radiance `rgb` (row-major, `w x h`).
-pub fn color_image(
+pub(crate) fn color_image(
     rgb: &[[f32; 3]],
     w: u32,
     h: u32,
@@ -111,7 +111,7 @@ fn soften(src: &[[f32; 3]], w: usize, h: usize) -> Vec<[f32; 3]> {
 }
 
 /// Exact z-depth (0 where nothing was hit).
-pub fn exact_depth(r: &Render) -> DepthImage {
+pub(crate) fn exact_depth(r: &Render) -> DepthImage {
     DepthImage {
         width: r.width,
         height: r.height,
@@ -120,14 +120,14 @@ pub fn exact_depth(r: &Render) -> DepthImage {
 }
 
 /// The label image.
-pub fn label_image(r: &Render) -> GrayImage {
+pub(crate) fn label_image(r: &Render) -> GrayImage {
     GrayImage::from_fn(r.width, r.height, |x, y| {
         Luma([r.px[(y * r.width + x) as usize].label])
     })
 }
 
 /// Kinect-like depth: holes, then noise and disparity quantisation.
-pub fn sensor_depth(r: &Render, cam: &Camera, cfg: &SensorConfig, seed: u32) -> DepthImage {
+pub(crate) fn sensor_depth(r: &Render, cam: &Camera, cfg: &SensorConfig, seed: u32) -> DepthImage {
     let (w, h) = (r.width as usize, r.height as usize);
     let z: Vec<f32> = r.px.iter().map(|p| p.depth).collect();
     let mut out = z.clone();

@@ -11,7 +11,7 @@ use std::sync::OnceLock;
 const TILE: usize = 16;
 
 /// One light's cube map.
-pub struct ShadowMap {
+pub(crate) struct ShadowMap {
     pos: V3,
     /// Texels per face side (a multiple of [`TILE`]).
     n: usize,

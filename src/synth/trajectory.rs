@@ -48,7 +48,7 @@ pub struct Motion {
 
 /// Camera-to-world pose from a position and yaw / pitch / roll. The camera
 /// frame is the TUM / OpenCV one: `x` right, `y` down, `z` forward.
-pub fn pose_from_angles(pos: [f64; 3], yaw: f64, pitch: f64, roll: f64) -> Pose {
+pub(crate) fn pose_from_angles(pos: [f64; 3], yaw: f64, pitch: f64, roll: f64) -> Pose {
     let (sy, cy) = sin_cos(yaw);
     let (sp, cp) = sin_cos(pitch);
     let (sr, cr) = sin_cos(roll);
@@ -626,11 +626,11 @@ fn walk(
 }
 
 /// Extra distance a still view keeps from every surface beyond `motion.clearance`, metres.
-pub const VIEW_MARGIN: f64 = 0.1;
+pub(crate) const VIEW_MARGIN: f64 = 0.1;
 
 /// An independent random view (for still-image training sets): a free point
 /// `cfg.view_height` high (0.8 to 1.8 m by default) looking at something in the room.
-pub fn random_view(
+pub(crate) fn random_view(
     scene: &Scene,
     camera: &Camera,
     cfg: &MotionConfig,

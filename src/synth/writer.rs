@@ -12,10 +12,10 @@ use std::io::Write;
 use std::path::Path;
 
 /// Depth PNG value per metre (TUM RGB-D and the NYU PNG conversions).
-pub const DEPTH_SCALE: f64 = 5000.0;
+pub(crate) const DEPTH_SCALE: f64 = 5000.0;
 
 /// Creates the output folder and checks that files can be written in it.
-pub fn prepare_out(out: &Path) -> Result<()> {
+pub(crate) fn prepare_out(out: &Path) -> Result<()> {
     if out.exists() && !out.is_dir() {
         return Err(Error::invalid(
             out,
@@ -134,7 +134,7 @@ impl FrameFiles {
 }
 
 /// `rgb.txt`, `depth.txt`, `labels.txt` and `associations.txt` of a sequence.
-pub fn write_lists(dir: &Path, stamps: &[String], gt_depth: bool) -> Result<()> {
+pub(crate) fn write_lists(dir: &Path, stamps: &[String], gt_depth: bool) -> Result<()> {
     let list = |folder: &str, what: &str| -> Result<()> {
         write_atomic_with(dir.join(format!("{folder}.txt")), |w| {
             writeln!(w, "# {what}")?;
@@ -164,7 +164,7 @@ pub fn write_lists(dir: &Path, stamps: &[String], gt_depth: bool) -> Result<()> 
 }
 
 /// A split list: one image name per line.
-pub fn write_split(path: &Path, names: &[String]) -> Result<()> {
+pub(crate) fn write_split(path: &Path, names: &[String]) -> Result<()> {
     write_atomic_with(path, |w| {
         for n in names {
             writeln!(w, "{n}")?;
@@ -176,7 +176,7 @@ pub fn write_split(path: &Path, names: &[String]) -> Result<()> {
 /// `scene.json`: seed, full configuration, per-scene rooms and label
 /// histograms; `totals` counts the sequence frames (the NYU-layout views are
 /// counted in `nyu`).
-pub fn scene_json(
+pub(crate) fn scene_json(
     cfg: &SynthConfig,
     camera: &crate::camera::Camera,
     scenes: Vec<Value>,

@@ -29,10 +29,10 @@ pub struct TrainState {
 }
 
 /// The most epochs a run may have (the `epochs` bound of every training config).
-pub const MAX_EPOCHS: usize = 100_000;
+pub(crate) const MAX_EPOCHS: usize = 100_000;
 
 impl TrainState {
-    /// Whether the state can be one a run wrote: at most [`MAX_EPOCHS`] epochs, and a history
+    /// Whether the state can be one a run wrote: at most `MAX_EPOCHS` epochs, and a history
     /// (when it has one) of distinct epochs up to `epoch`, ending there.
     pub fn check(&self) -> std::result::Result<(), String> {
         if self.epoch > MAX_EPOCHS {
@@ -60,7 +60,7 @@ impl TrainState {
 }
 
 /// The folder name of epoch `epoch`'s checkpoint, `epoch-0007`.
-pub fn checkpoint_name(epoch: usize) -> String {
+pub(crate) fn checkpoint_name(epoch: usize) -> String {
     format!("epoch-{epoch:04}")
 }
 
@@ -107,7 +107,7 @@ impl RunDir {
     }
 
     /// Opens `root` for a run and writes the config there. The folder is locked for this
-    /// process first ([`crate::output_lock::ensure_held`]: a second writer is an error naming
+    /// process first (`crate::output_lock::ensure_held`: a second writer is an error naming
     /// the first). A new run needs a folder that holds no run ([`RunContents`]: no
     /// checkpoint, `metrics.csv`, `config.toml`...): otherwise the error says what is there
     /// and the ways out (`--resume`, another `--out`, `--overwrite`). `resume` needs a

@@ -2,16 +2,16 @@
 //! `ValidStep`: a network plugs in through [`Learner`] (the loss of a batch, its validation
 //! metrics, its plots) and [`fit`] does the rest, the same way for every network:
 //! - `--resume`: model, optimizer state, epoch, step and history from the run's last
-//!   checkpoint; the seeded data order ([`epoch_order`]) and augmentation ([`batch_rng`])
+//!   checkpoint; the seeded data order (`epoch_order`) and augmentation (`batch_rng`)
 //!   make a resumed run continue the numbers of an uninterrupted one;
 //! - a progress bar per epoch (hidden by `--quiet`; one line per epoch is always printed);
 //! - the non-finite policy: a non-finite loss stops the run; a batch with non-finite
 //!   gradients is skipped, ten in a row stop the run; an epoch whose weights or metrics are
-//!   not finite is not saved ([`check_finite_epoch`]); every stop names the checkpoint kept;
+//!   not finite is not saved (`check_finite_epoch`); every stop names the checkpoint kept;
 //! - per epoch: `metrics.csv` and the network's plots, then an atomic checkpoint
 //!   (`model.bpk`, `optimizer.bpk`, `state.json`, the run's config);
 //! - data loading overlapped with the steps: a loader thread reads and augments the next
-//!   [`PREFETCH`] batches ([`Learner::load`]) while the current one trains, as PyTorch's
+//!   `PREFETCH` batches ([`Learner::load`]) while the current one trains, as PyTorch's
 //!   `DataLoader` workers do; the epoch line says how long loading took and how long the
 //!   steps waited for it.
 
@@ -64,7 +64,7 @@ pub trait Learner {
     /// The network's name in messages, e.g. `"SDFCNN"`.
     fn name(&self) -> &'static str;
 
-    /// Number of training samples (an epoch visits them in [`epoch_order`]).
+    /// Number of training samples (an epoch visits them in `epoch_order`).
     fn train_len(&self) -> usize;
 
     /// At most this many samples an epoch, the first of the seeded order (0: all).
@@ -137,7 +137,7 @@ pub struct Fit<'a> {
 
 /// Per-batch figures summed over an epoch, weighted by samples.
 #[derive(Debug, Default)]
-pub struct Meter {
+pub(crate) struct Meter {
     sums: Vec<(&'static str, f64)>,
     samples: usize,
 }
@@ -250,7 +250,7 @@ pub fn fit<L: Learner + Sync>(learner: &L, fit: &Fit, model: L::Model) -> Result
 
 /// Batches the loader thread may have ready ahead of the step (each is one batch of
 /// decoded, augmented samples in host memory).
-pub const PREFETCH: usize = 2;
+pub(crate) const PREFETCH: usize = 2;
 
 /// How an epoch's data loading went: the loader thread's time, and how long the steps
 /// waited for it (the part loading added to the epoch).
@@ -459,7 +459,11 @@ fn resume<L: Learner>(
 /// shape; and every parameter it names must be one of the network's (a state saved for
 /// another network, or another run of it, names parameters this one does not have). Burn
 /// would otherwise drop the state it cannot place and go on with fresh optimizer moments.
-pub fn check_optimizer_state<M: Module>(model: &M, path: &Path, network: &str) -> Result<()> {
+pub(crate) fn check_optimizer_state<M: Module>(
+    model: &M,
+    path: &Path,
+    network: &str,
+) -> Result<()> {
     use burn::store::burn_pack::Reader;
     struct Shapes(std::collections::HashMap<u64, Vec<usize>>);
     impl burn::module::ModuleVisitor for Shapes {

@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 /// The order in which an epoch visits `n` samples: a permutation that depends
 /// only on the seed and the epoch, so a resumed run sees the same data order as
 /// an uninterrupted one.
-pub fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
+pub(crate) fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
     let mut order: Vec<usize> = (0..n).collect();
     let mut rng =
         ChaCha8Rng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
@@ -30,7 +30,7 @@ pub fn epoch_order(n: usize, seed: u64, epoch: usize) -> Vec<usize> {
 }
 
 /// A seeded RNG for one (epoch, batch): augmentation is reproducible on resume.
-pub fn batch_rng(seed: u64, epoch: usize, batch: usize) -> ChaCha8Rng {
+pub(crate) fn batch_rng(seed: u64, epoch: usize, batch: usize) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(
         seed.wrapping_add((epoch as u64) << 32)
             .wrapping_add(batch as u64)
@@ -87,7 +87,7 @@ pub fn config_model(toml_text: &str, path: &std::path::Path) -> crate::Result<St
 }
 
 /// Shapes of the parameters whose gradient holds a NaN or an infinity.
-pub fn non_finite_grads<M: burn::module::Module>(
+pub(crate) fn non_finite_grads<M: burn::module::Module>(
     module: &M,
     grads: &burn::optim::GradientsParams,
 ) -> Vec<Vec<usize>> {
@@ -95,7 +95,7 @@ pub fn non_finite_grads<M: burn::module::Module>(
 }
 
 /// Shapes of the trainable parameters holding a NaN or an infinity.
-pub fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>> {
+pub(crate) fn non_finite_params<M: burn::module::Module>(module: &M) -> Vec<Vec<usize>> {
     non_finite(module, None)
 }
 
@@ -144,7 +144,12 @@ fn non_finite<M: burn::module::Module>(
 }
 
 /// Stops training on a non-finite loss with a message that says what was kept.
-pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crate::Result<()> {
+pub(crate) fn check_finite(
+    loss: f64,
+    epoch: usize,
+    batch: usize,
+    run: &RunDir,
+) -> crate::Result<()> {
     if loss.is_finite() {
         return Ok(());
     }
@@ -159,7 +164,7 @@ pub fn check_finite(loss: f64, epoch: usize, batch: usize, run: &RunDir) -> crat
 /// metric (training and validation) is finite: the last step of an epoch can leave NaN
 /// weights whose loss no batch has computed yet, and that checkpoint must not replace the
 /// last good one.
-pub fn check_finite_epoch<M: burn::module::Module>(
+pub(crate) fn check_finite_epoch<M: burn::module::Module>(
     module: &M,
     values: &std::collections::BTreeMap<String, f64>,
     epoch: usize,

@@ -2,7 +2,7 @@
 //! its learning-rate schedule and gradient clipping. The keys are the same for both
 //! networks (so sweeps vary `optimizer.lr` whichever they train); the defaults are each
 //! network's own: a key a config leaves out takes the value of the network's recipe
-//! ([`deserialize_over`]), never another network's.
+//! (`deserialize_over`), never another network's.
 
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::momentum::MomentumConfig;
@@ -172,7 +172,7 @@ struct Written {
 
 /// Reads `[optimizer]` over `defaults` (the network's recipe): for
 /// `#[serde(deserialize_with = ...)]` in a network's training config.
-pub fn deserialize_over<'de, D: Deserializer<'de>>(
+pub(crate) fn deserialize_over<'de, D: Deserializer<'de>>(
     deserializer: D,
     defaults: OptimizerConfig,
 ) -> Result<OptimizerConfig, D::Error> {

@@ -50,7 +50,7 @@ pub struct MatchingEvalConfig {
     /// The range matcher's settings (FPFDCNN's matching).
     pub range: RangeMatcherConfig,
     /// Centre the range matcher's windows by a global motion estimate
-    /// ([`crate::range_matcher::guided_range_match`]); `None`: at the keypoint (the paper).
+    /// (`crate::range_matcher::guided_range_match`); `None`: at the keypoint (the paper).
     pub guide: Option<GuideConfig>,
     /// Roll-compensated FPFDCNN matching ([`super::derotation`]; needs `guide`): image B
     /// turned back by the estimated roll when it reaches `min_deg`.

@@ -12,9 +12,9 @@
 //! iterations, observations beyond the χ² gate are dropped (ORB-SLAM's two rounds).
 //!
 //! Poses are camera-to-world and perturbed on the right, `T ← T exp(δ)` as in
-//! [`super::pose_graph`]; the normal equations are reduced to the poses by the Schur
+//! `super::pose_graph`; the normal equations are reduced to the poses by the Schur
 //! complement over the points (3x3 blocks) and solved densely by Cholesky
-//! ([`super::cholesky`]) with Levenberg-Marquardt damping. No crate in reach fitted: the sparse solver crates
+//! (`super::cholesky`) with Levenberg-Marquardt damping. No crate in reach fitted: the sparse solver crates
 //! (`factrs`, `tiny-solver`, `apex-solver`) are not available offline here, and the problem
 //! is small (tens of poses, thousands of points).
 
@@ -74,7 +74,7 @@ impl BaSettings {
 }
 
 /// The pose graph's edges with their information times `weight` (none when it is 0).
-pub fn weighted_edges(edges: &[Edge], weight: f64) -> Vec<Edge> {
+pub(crate) fn weighted_edges(edges: &[Edge], weight: f64) -> Vec<Edge> {
     edges
         .iter()
         .filter(|_| weight > 0.0)
@@ -153,7 +153,7 @@ pub fn tracks(map: &Map, camera: &Camera) -> Vec<Track> {
 /// The track of a group of `(keyframe, keypoint)` with 3D points: its point at the mean of
 /// their back-projections from the current poses, each observation's keyframe numbered by
 /// `slot` (the index of its pose in the adjustment).
-pub fn track_of_group(
+pub(crate) fn track_of_group(
     map: &Map,
     camera: &Camera,
     group: &[(usize, usize)],
@@ -184,7 +184,7 @@ pub fn track_of_group(
 
 /// Groups of `(keyframe, keypoint)` joined by the constraints' matches (union-find), each
 /// sorted, keypoints with a 3D point only, in order of their first member.
-pub fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
+pub(crate) fn match_groups(map: &Map) -> Vec<Vec<(usize, usize)>> {
     let offsets: Vec<usize> = map
         .keyframes
         .iter()
@@ -490,7 +490,7 @@ impl Problem<'_> {
 /// relative-pose `edges` (those of [`super::pose_graph`]) as further terms. At least one
 /// pose must be fixed (the gauge); with none, the first is. Returns what it did; poses
 /// and points are only changed by steps that lower the cost.
-pub fn adjust(
+pub(crate) fn adjust(
     poses: &mut [Pose],
     fixed: &[bool],
     tracks: &mut [Track],
@@ -588,7 +588,7 @@ pub fn adjust(
 /// `max_keyframes` free, the first always fixed, and any keyframe no track sees) and the
 /// tracks' points, with the pose graph's `edges` weighted by `edge_weight`. `None` when
 /// off or when there is nothing to adjust; else what it did and the adjusted tracks.
-pub fn adjust_map(
+pub(crate) fn adjust_map(
     map: &mut Map,
     edges: &[Edge],
     camera: &Camera,
@@ -628,7 +628,7 @@ pub fn adjust_map(
 /// (or, for keypoints in no track, at the keyframe's own 3D point from its adjusted pose),
 /// with the same reprojection and depth terms; a frame with fewer than
 /// `pnp.min_inliers` such points keeps its pose. Returns how many frames were refined.
-pub fn refine_frames(
+pub(crate) fn refine_frames(
     map: &Map,
     tracks: &[Track],
     frames: &mut [FrameRecord],

@@ -17,7 +17,7 @@ const BLOCK: usize = 48;
 /// `x` with `h·x = g`, for symmetric positive-definite `h` (only its lower triangle is read);
 /// `None` when `h` is not positive definite (a non-positive or non-finite pivot) or the sizes
 /// differ.
-pub fn solve_spd(mut h: DMatrix<f64>, g: &DVector<f64>) -> Option<DVector<f64>> {
+pub(crate) fn solve_spd(mut h: DMatrix<f64>, g: &DVector<f64>) -> Option<DVector<f64>> {
     let n = h.nrows();
     if h.ncols() != n || g.len() != n {
         return None;

@@ -10,10 +10,10 @@
 //! agrees with the ground truth's between the depth stamps 14 % better than with that between
 //! the colour stamps (lab/notes/slam-results.md, *Poses at the colour instant*).
 //!
-//! [`move_to_colour_instants`] therefore takes each frame's final pose as the depth's and
+//! `move_to_colour_instants` therefore takes each frame's final pose as the depth's and
 //! moves it along the trajectory to the colour's instant: between the frame and its previous
 //! frame when the depth came after the colour (the usual case), towards the next frame when
-//! it came before, at that step's velocity ([`motion_over`]: interpolation, never more than
+//! it came before, at that step's velocity (`motion_over`: interpolation, never more than
 //! the step). The neighbours' poses are read before any frame moves. Frames
 //! without an offset (7-Scenes, registered offline with equal stamps; monocular runs), frames
 //! without a tracked neighbour of the next or previous index, and frames whose offset is
@@ -28,7 +28,7 @@ use crate::slam::map::Map;
 use nalgebra::{Translation3, UnitQuaternion};
 
 /// Offsets shorter than this (seconds) are treated as none.
-pub const MIN_OFFSET_S: f64 = 0.5e-3;
+pub(crate) const MIN_OFFSET_S: f64 = 0.5e-3;
 
 /// The camera's motion over `offset_s` seconds after an instant, at the velocity of `step`
 /// (`T_prev⁻¹ T_now`, camera frame, taken over `step_s` seconds), to first order: the
@@ -36,7 +36,7 @@ pub const MIN_OFFSET_S: f64 = 0.5e-3;
 /// `T_now⁻¹ T(now + offset)`, the depth camera's pose in the colour camera's frame when the
 /// depth comes `offset_s` after the colour. `None` when the offset is shorter than
 /// [`MIN_OFFSET_S`], longer than the step, or any input is not finite.
-pub fn motion_over(step: &Pose, step_s: f64, offset_s: f64) -> Option<Pose> {
+pub(crate) fn motion_over(step: &Pose, step_s: f64, offset_s: f64) -> Option<Pose> {
     if !(step_s.is_finite() && step_s > 1e-6 && offset_s.is_finite())
         || offset_s.abs() < MIN_OFFSET_S
         || offset_s.abs() > step_s
@@ -60,7 +60,7 @@ pub fn motion_over(step: &Pose, step_s: f64, offset_s: f64) -> Option<Pose> {
 
 /// Moves each frame's pose from its depth image's instant (`stamp + depth_offset(index)`) to
 /// its colour image's (`stamp`) in place. Returns how many frames moved.
-pub fn move_to_colour_instants(
+pub(crate) fn move_to_colour_instants(
     map: &Map,
     frames: &mut [FrameRecord],
     depth_offset: impl Fn(usize) -> f64,

@@ -5,7 +5,7 @@
 //! camera proximity and by descriptor similarity (cosine of mean descriptors) —
 //! each pair verified by range matching + PnP + RANSAC; verified pairs become
 //! relative-pose constraints, and a pose graph over all keyframes is optimised
-//! ([`super::pose_graph`]). The map is then re-fused from the corrected poses.
+//! (`super::pose_graph`). The map is then re-fused from the corrected poses.
 //!
 //! *Local*: keypoints matched between keyframes are unified into one world point
 //! (the average of their back-projections); each keyframe's depth is rescaled by
@@ -74,7 +74,7 @@ pub struct LocalSummary {
 }
 
 /// The correction stage.
-pub struct Corrector {
+pub(crate) struct Corrector {
     cfg: SlamConfig,
     camera: Camera,
     /// Counts so far.
@@ -364,7 +364,7 @@ impl Corrector {
 /// Local correction: unifies matched keypoints into world points and rescales
 /// keyframe depths (see the module documentation). Sets `depth_scale` of each
 /// keyframe and returns what it did and the unified points.
-pub fn local_correction(
+pub(crate) fn local_correction(
     map: &mut Map,
     cfg: &SlamConfig,
     rescale_depth: bool,

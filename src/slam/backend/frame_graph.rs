@@ -28,7 +28,7 @@ use std::ops::Range;
 
 /// What placing the frames did.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct FrameGraphSummary {
+pub(crate) struct FrameGraphSummary {
     /// Spans solved (a keyframe and the tracked frames after it, with a step edge).
     pub spans: usize,
     /// Of those, spans held at both ends.
@@ -58,7 +58,11 @@ const KEYPOINT_WEIGHT: f64 = 1.0 / 9.0;
 /// tracked against another keyframe ends the span, and frames up to the next keyframe are left
 /// as they are. A step edge joins two records only when the step was measured from the record
 /// just before it.
-pub fn place_frames(map: &Map, frames: &mut [FrameRecord], cfg: &DenseConfig) -> FrameGraphSummary {
+pub(crate) fn place_frames(
+    map: &Map,
+    frames: &mut [FrameRecord],
+    cfg: &DenseConfig,
+) -> FrameGraphSummary {
     let mut summary = FrameGraphSummary::default();
     let mut i = 0;
     while i < frames.len() {

@@ -70,7 +70,7 @@ pub struct LocalProblem {
 /// window (union-find), with a 3D point, in at least two keyframes, no keyframe twice;
 /// each point starts at the mean of its back-projections. Keyframe 0, keyframes outside
 /// the window and window keyframes no track sees are fixed. `None` without a track.
-pub fn problem(map: &Map, window: &[usize], camera: &Camera) -> Option<LocalProblem> {
+pub(crate) fn problem(map: &Map, window: &[usize], camera: &Camera) -> Option<LocalProblem> {
     let newest = *window.last()?;
     let in_window = |k: usize| window.binary_search(&k).is_ok();
     let mut index: BTreeMap<(usize, usize), usize> = BTreeMap::new();
@@ -168,7 +168,7 @@ pub fn solve(
 }
 
 /// The edges between keyframes of `ids` (sorted map indices), renumbered into it.
-pub fn local_edges(ids: &[usize], edges: &[Edge]) -> Vec<Edge> {
+pub(crate) fn local_edges(ids: &[usize], edges: &[Edge]) -> Vec<Edge> {
     let slot = |k: usize| ids.binary_search(&k).ok();
     edges
         .iter()
@@ -183,7 +183,7 @@ pub fn local_edges(ids: &[usize], edges: &[Edge]) -> Vec<Edge> {
 }
 
 /// Writes the free poses of a solved problem into the map.
-pub fn write_back(map: &mut Map, p: &LocalProblem) {
+pub(crate) fn write_back(map: &mut Map, p: &LocalProblem) {
     for ((&id, pose), &fixed) in p.ids.iter().zip(&p.poses).zip(&p.fixed) {
         if !fixed {
             map.keyframes[id].pose = renormalized(pose);

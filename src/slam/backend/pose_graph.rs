@@ -22,7 +22,7 @@ pub(super) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// `exp` of `ξ = (ρ, φ)`.
-pub fn se3_exp(xi: &Vector6<f64>) -> Pose {
+pub(crate) fn se3_exp(xi: &Vector6<f64>) -> Pose {
     let rho = Vector3::new(xi[0], xi[1], xi[2]);
     let phi = Vector3::new(xi[3], xi[4], xi[5]);
     let theta = phi.norm();
@@ -42,7 +42,7 @@ pub fn se3_exp(xi: &Vector6<f64>) -> Pose {
 }
 
 /// `log` of a pose as `(ρ, φ)`.
-pub fn se3_log(t: &Pose) -> Vector6<f64> {
+pub(crate) fn se3_log(t: &Pose) -> Vector6<f64> {
     let phi = t.rotation.scaled_axis();
     let theta = phi.norm();
     let k = skew(&phi);
@@ -96,12 +96,12 @@ pub struct Edge {
 
 /// An edge's information from the standard deviations of its translation (metres) and
 /// rotation (degrees).
-pub fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Matrix6<f64> {
+pub(crate) fn information(sigma_translation: f64, sigma_rotation_deg: f64) -> Matrix6<f64> {
     Matrix6::from_diagonal(&sqrt_information(sigma_translation, sigma_rotation_deg).map(|w| w * w))
 }
 
 /// The square root of [`information`]: one over the standard deviations.
-pub fn sqrt_information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
+pub(crate) fn sqrt_information(sigma_translation: f64, sigma_rotation_deg: f64) -> Vector6<f64> {
     let (t, r) = (sigma_translation, sigma_rotation_deg.to_radians());
     Vector6::new(1.0 / t, 1.0 / t, 1.0 / t, 1.0 / r, 1.0 / r, 1.0 / r)
 }
@@ -133,7 +133,7 @@ impl Default for LmSettings {
 
 /// What the optimisation did.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LmSummary {
+pub(crate) struct LmSummary {
     /// Robust cost ([`cost`]) before the optimisation.
     pub initial_cost: f64,
     /// Robust cost ([`cost`]) after it.
@@ -351,7 +351,7 @@ impl Normal {
 }
 
 /// Optimises `poses` in place (pose 0 fixed) over `edges`.
-pub fn optimise(poses: &mut [Pose], edges: &[Edge], settings: &LmSettings) -> LmSummary {
+pub(crate) fn optimise(poses: &mut [Pose], edges: &[Edge], settings: &LmSettings) -> LmSummary {
     let initial_cost = cost(poses, edges, settings);
     let mut summary = LmSummary {
         initial_cost,

@@ -290,7 +290,7 @@ pub struct DenseConfig {
     pub huber: f64,
     /// Weigh each pair by the inverse variance of the sensor's depth noise at its depth,
     /// relative to 1 m (a Kinect's, which grows with the square of the depth:
-    /// [`crate::slam::frontend::depth_alignment::axial_noise`]; the model point's axial noise only,
+    /// `crate::slam::frontend::depth_alignment::axial_noise`; the model point's axial noise only,
     /// whatever the angle of the surface); `huber` then applies at 1 m, so at 3 m to
     /// distances 7.5 times larger, where the levels' `max_distance` gates first.
     pub noise_weighting: bool,
@@ -442,7 +442,7 @@ pub struct MapConfig {
     /// kept; what one keyframe alone saw there (flicker of predicted depth, sensor
     /// noise at edges) is not.
     pub min_views: u16,
-    /// Depth edges ([`crate::slam::mapping::depth_edges`]): a pixel where the second difference of inverse
+    /// Depth edges (`crate::slam::mapping::depth_edges`): a pixel where the second difference of inverse
     /// depth over `depth_edge_reach` pixels (full resolution, along x or y), times its
     /// depth, exceeds `depth_edge_ratio` is not fused (0: every pixel). Planes, slanted or
     /// not, score 0.
@@ -686,7 +686,7 @@ pub struct BundleAdjustmentConfig {
     pub edge_weight: f64,
     /// Afterwards, refine each tracked frame's pose against the adjusted points.
     pub refine_frames: bool,
-    /// Local bundle adjustment during the run ([`crate::slam::backend::local_bundle_adjustment`]):
+    /// Local bundle adjustment during the run (`crate::slam::backend::local_bundle_adjustment`):
     /// at most this many keyframes free around each new one (0: off, the default; 10 when
     /// on).
     pub local_keyframes: usize,

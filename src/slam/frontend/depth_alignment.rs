@@ -2,7 +2,7 @@
 //! reference keyframe's whole depth image by projective point-to-plane ICP, KinectFusion's
 //! association (a frame point is paired with the keyframe point its projection lands on),
 //! coarse to fine, with Huber weights (and, by default, the sensor's depth noise:
-//! [`axial_noise`]). Pixels go through the camera's distortion model both
+//! `axial_noise`). Pixels go through the camera's distortion model both
 //! ways, as everywhere else in the system. Tracking keeps the refined pose only when it agrees
 //! with the pose from the keypoints (`[dense]` in `configs/slam/default.toml`).
 
@@ -260,7 +260,7 @@ pub fn align(
 /// The Kinect's axial depth noise at depth `z` (metres), after Nguyen, Izadi and Lovell
 /// (2012), "Modeling Kinect sensor noise for improved 3D reconstruction and tracking":
 /// `σ(z) = 1.2 mm + 1.9 mm/m² · (z − 0.4 m)²`.
-pub fn axial_noise(z: f64) -> f64 {
+pub(crate) fn axial_noise(z: f64) -> f64 {
     0.0012 + 0.0019 * (z - 0.4) * (z - 0.4)
 }
 

@@ -42,7 +42,7 @@ struct Candidate {
 
 /// A verified keyframe pair.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PairMatch {
+pub(crate) struct PairMatch {
     /// `T_a⁻¹ T_b`.
     pub relative: Pose,
     /// Number of PnP inliers.
@@ -137,7 +137,7 @@ pub(super) fn correspond(
 /// estimates `T_a⁻¹ T_b` by PnP: guided by `guess` (that relative pose) with the
 /// normal window, else with the wide window. Returns the relative pose, the
 /// inliers and the inlier keypoint pairs `(in a, in b)`.
-pub fn verify_pair(
+pub(crate) fn verify_pair(
     camera: &Camera,
     cfg: &SlamConfig,
     a: &KeyframeFeatures,

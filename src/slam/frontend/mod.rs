@@ -2,7 +2,7 @@
 //! keyframe (section IV-B), and the decision to make it a keyframe.
 //!
 //! * [`keypoints`] — FPFDCNN or ORB keypoints and descriptors of a frame;
-//! * [`prefetch`] — frames loaded and their keypoints detected ahead of tracking;
+//! * `prefetch` — frames loaded and their keypoints detected ahead of tracking;
 //! * [`repeated_images`] — frames whose images repeat the previous frame's, counted;
 //! * [`tracking`] — the tracker: constant-velocity prediction, matching, PnP + RANSAC,
 //!   relocalisation, keyframes; [`matching`] — the 3D-2D correspondences it and the back
@@ -13,6 +13,6 @@
 pub mod depth_alignment;
 pub mod keypoints;
 pub mod matching;
-pub mod prefetch;
+pub(crate) mod prefetch;
 pub mod repeated_images;
 pub mod tracking;

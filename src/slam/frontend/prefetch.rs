@@ -45,7 +45,7 @@ impl Drop for Finish<'_> {
 /// the consumer), `consume(i, item)` on the calling thread in order of `i` until it returns
 /// `false`. A panic in `produce` resumes on the calling thread once the items before it
 /// are consumed.
-pub fn ordered_map<T: Send>(
+pub(crate) fn ordered_map<T: Send>(
     n: usize,
     workers: usize,
     produce: impl Fn(usize) -> T + Sync,

@@ -13,7 +13,7 @@ use image::RgbImage;
 
 /// Content hashes of one frame's images.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ImageKeys {
+pub(crate) struct ImageKeys {
     colour: u64,
     /// `None` without a depth image (monocular runs, a frame without depth).
     depth: Option<u64>,

@@ -100,7 +100,7 @@ pub struct FrameObservation {
 
 /// A keyframe just created by tracking, for the mapping stage.
 #[derive(Debug, Clone)]
-pub struct NewKeyframe {
+pub(crate) struct NewKeyframe {
     /// The keyframe's id (its index in the map's keyframes).
     pub id: usize,
     /// Index of the frame it was made from.
@@ -118,7 +118,7 @@ pub struct NewKeyframe {
 
 /// One frame for the tracker.
 #[derive(Debug, Clone)]
-pub struct TrackInput<'a> {
+pub(crate) struct TrackInput<'a> {
     /// The frame's index in the sequence.
     pub index: usize,
     /// The frame's timestamp, seconds.
@@ -133,7 +133,7 @@ pub struct TrackInput<'a> {
 
 /// Result of [`Tracker::track`].
 #[derive(Debug, Clone)]
-pub struct TrackOutput {
+pub(crate) struct TrackOutput {
     /// The frame's outcome.
     pub record: FrameRecord,
     /// The keyframe the frame became, if any, for the mapping stage.
@@ -189,7 +189,7 @@ const FRAME_MODEL_STEP: usize = 4;
 const FRAME_ITERATIONS: usize = 3;
 
 /// The tracking stage.
-pub struct Tracker {
+pub(crate) struct Tracker {
     cfg: SlamConfig,
     camera: Camera,
     monocular: bool,

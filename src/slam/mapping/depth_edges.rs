@@ -14,7 +14,7 @@ use crate::dataset::DepthImage;
 /// scores 0 however steep its depth gradient; a pixel between a near and a far surface
 /// does not. `max_ratio <= 0`, `reach == 0`, or data that do not hold `width * height`
 /// values leave the image as it is. Returns how many pixels were dropped.
-pub fn drop_depth_edges(depth: &mut DepthImage, reach: u32, max_ratio: f32) -> usize {
+pub(crate) fn drop_depth_edges(depth: &mut DepthImage, reach: u32, max_ratio: f32) -> usize {
     let Some(test) = EdgeWindow::new(reach, max_ratio) else {
         return 0;
     };

@@ -23,7 +23,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// A keyframe on its way to mapping, with its full-resolution images.
-pub struct MapperInput {
+pub(crate) struct MapperInput {
     /// The keyframe from tracking.
     pub keyframe: NewKeyframe,
     /// Full-resolution colour image.
@@ -37,7 +37,7 @@ pub struct MapperInput {
 /// at a time (the most moved first: taken out at the pose they were fused with and
 /// fused again at their new one), so the work per keyframe stays bounded; the final
 /// map is re-fused from every final pose.
-pub struct LocalMapper {
+pub(crate) struct LocalMapper {
     cfg: SlamConfig,
     camera: Camera,
     monocular: bool,

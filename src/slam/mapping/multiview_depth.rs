@@ -313,7 +313,7 @@ const MIN_RATIOS_CELL: usize = 100;
 /// measurements takes the median of the whole keyframe. SDFCNN's error is mostly smooth
 /// (a scale, or a slant, per region), so where a region was measured, its unmeasured
 /// pixels move with it. Returns the keyframe's median ratio when a correction was made.
-pub fn merge_measured(
+pub(crate) fn merge_measured(
     depth: &mut DepthImage,
     measured: &DepthImage,
     keep_unconfirmed: bool,

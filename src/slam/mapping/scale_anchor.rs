@@ -11,10 +11,10 @@
 //!   even when `H` is not given, so a user can check the map against a tape measure.
 //!   Labels on real frames are noisy (table tops and cabinet fronts called floor), so the
 //!   floor is the lowest well-supported level of floor points along the up direction the
-//!   cameras' horizontal axes give ([`fit_floor`]).
+//!   cameras' horizontal axes give (`fit_floor`).
 //! * **Multi-view against single-view depth.** Where the plane sweep
 //!   ([`super::multiview_depth`]) measured a keyframe's depth, the median ratio measured /
-//!   predicted is that keyframe's scale against the map's geometry. [`fuse_ratios`] fuses them
+//!   predicted is that keyframe's scale against the map's geometry. `fuse_ratios` fuses them
 //!   over the whole run (median in log space, with its standard error), not per frame. It shows
 //!   whether the network's scale is consistent from view to view; a bias every view shares
 //!   (a room-size prior) moves the map's geometry with it and only the floor can show that.
@@ -27,10 +27,10 @@ use serde::{Deserialize, Serialize};
 use super::semantic_map::MapPoint;
 
 /// The highest camera height `--camera-height` accepts (metres).
-pub const MAX_CAMERA_HEIGHT: f64 = 10.0;
+pub(crate) const MAX_CAMERA_HEIGHT: f64 = 10.0;
 
 /// Floor points fewer than this: the floor is not seen.
-pub const MIN_FLOOR_POINTS: usize = 200;
+pub(crate) const MIN_FLOOR_POINTS: usize = 200;
 /// Share of the floor points within [`INLIER_DISTANCE`] of the floor's level for it to count
 /// (monocular depth smears the floor over tens of centimetres).
 const MIN_INLIER_SHARE: f64 = 0.1;
@@ -38,13 +38,13 @@ const MIN_INLIER_SHARE: f64 = 0.1;
 /// distance from the cameras to the floor points' centroid (the map's unit is not known yet).
 const INLIER_DISTANCE: f64 = 0.03;
 /// Largest angle between the least-squares floor normal and up, degrees.
-pub const MAX_TILT_DEG: f64 = 30.0;
+pub(crate) const MAX_TILT_DEG: f64 = 30.0;
 
 /// Keyframes with a multi-view ratio fewer than this, or a relative standard error above
 /// [`MAX_SCALE_ERROR`]: the map-level scale is poorly determined.
-pub const MIN_SCALE_KEYFRAMES: usize = 5;
+pub(crate) const MIN_SCALE_KEYFRAMES: usize = 5;
 /// Largest relative standard error of the fused multi-view scale for it to be trusted.
-pub const MAX_SCALE_ERROR: f64 = 0.05;
+pub(crate) const MAX_SCALE_ERROR: f64 = 0.05;
 
 /// The floor plane of a map and the camera height it implies.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -68,7 +68,7 @@ pub struct FloorFit {
 
 /// Why the floor could not anchor the scale.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum FloorError {
+pub(crate) enum FloorError {
     /// Fewer than [`MIN_FLOOR_POINTS`] map points are labelled floor (the count).
     #[error(
         "the floor is not seen: {0} map points are labelled floor (at least {MIN_FLOOR_POINTS} needed)"
@@ -94,7 +94,7 @@ pub enum FloorError {
 }
 
 /// Checks a user's camera height (metres): a positive finite number under
-/// [`MAX_CAMERA_HEIGHT`].
+/// `MAX_CAMERA_HEIGHT`.
 pub fn check_camera_height(h: f64) -> Result<f64, String> {
     if h.is_finite() && h > 0.0 && h < MAX_CAMERA_HEIGHT {
         Ok(h)
@@ -122,7 +122,7 @@ pub fn check_camera_height(h: f64) -> Result<f64, String> {
 /// 3. **The plane.** Least squares on the level's points gives the normal, which must be
 ///    within [`MAX_TILT_DEG`] of up; the cameras' median height above the plane is the camera
 ///    height.
-pub fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, FloorError> {
+pub(crate) fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, FloorError> {
     let floor: Vec<Vector3<f64>> = points
         .iter()
         .filter(|p| p.label == label::FLOOR)
@@ -222,7 +222,7 @@ pub fn fit_floor(points: &[MapPoint], cameras: &[Pose]) -> Result<FloorFit, Floo
 }
 
 /// The world's up direction from camera poses (see [`fit_floor`], step 1).
-pub fn up_direction(cameras: &[Pose]) -> Vector3<f64> {
+pub(crate) fn up_direction(cameras: &[Pose]) -> Vector3<f64> {
     let n = cameras.len().max(1) as f64;
     let image_up = cameras
         .iter()
@@ -284,7 +284,7 @@ pub struct MultiviewScale {
 /// Fuses per-keyframe ratios (non-positive and non-finite ones are ignored); `None` without
 /// any. The median's standard error is `1.253 · 1.4826 · MAD / √n` in log space (the MAD as a
 /// robust standard deviation, the median's efficiency against the mean).
-pub fn fuse_ratios(ratios: &[f64]) -> Option<MultiviewScale> {
+pub(crate) fn fuse_ratios(ratios: &[f64]) -> Option<MultiviewScale> {
     let mut logs: Vec<f64> = ratios
         .iter()
         .filter(|r| r.is_finite() && **r > 0.0)

@@ -109,7 +109,7 @@ pub struct KeyframeAtes {
 /// The keyframes' ATE against the sequence's ground truth (see [`KeyframeAtes`]); each
 /// `None` without ground truth, with fewer than three poses, with not one pose per
 /// keyframe, or when the alignment fails.
-pub fn keyframe_ates(groundtruth: Option<&Trajectory>, out: &SlamOutput) -> KeyframeAtes {
+pub(crate) fn keyframe_ates(groundtruth: Option<&Trajectory>, out: &SlamOutput) -> KeyframeAtes {
     let alignment = match out.depth {
         DepthMode::Sensor => Alignment::Se3,
         DepthMode::Predicted => Alignment::Sim3,
@@ -139,7 +139,7 @@ pub fn keyframe_ates(groundtruth: Option<&Trajectory>, out: &SlamOutput) -> Keyf
 }
 
 /// Table 11 figures of the map, when the keyframes have ground-truth poses.
-pub fn evaluate_map_accuracy(
+pub(crate) fn evaluate_map_accuracy(
     out: &SlamOutput,
     seq: &TumSequence,
     camera: &Camera,

@@ -23,7 +23,7 @@ const PLY_PROPS: [(&str, &str); 10] = [
 ];
 
 /// Writes map points as PLY, atomically: binary little-endian, or ASCII.
-pub fn write_ply(path: impl AsRef<Path>, points: &[MapPoint], ascii: bool) -> Result<()> {
+pub(crate) fn write_ply(path: impl AsRef<Path>, points: &[MapPoint], ascii: bool) -> Result<()> {
     crate::io::write_atomic_with(path, |w| {
         let format = if ascii {
             "ascii"

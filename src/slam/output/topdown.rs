@@ -11,7 +11,7 @@ use std::path::Path;
 
 /// The "up" direction of a set of camera poses: the mean of the cameras' `−y`
 /// axes (image up), which is vertical for a hand-held or robot camera.
-pub fn up_direction(poses: &[Pose]) -> Vector3<f64> {
+pub(crate) fn up_direction(poses: &[Pose]) -> Vector3<f64> {
     let s: Vector3<f64> = poses.iter().map(|p| p.rotation * -Vector3::y()).sum();
     if s.norm() > 1e-9 {
         s.normalize()
@@ -24,7 +24,7 @@ pub fn up_direction(poses: &[Pose]) -> Vector3<f64> {
 /// direction along which point heights are most concentrated (floors, table
 /// tops and ceilings are horizontal), so that a camera pitched down on average
 /// does not tilt the top-down view.
-pub fn level_up_direction(up: Vector3<f64>, points: &[MapPoint]) -> Vector3<f64> {
+pub(crate) fn level_up_direction(up: Vector3<f64>, points: &[MapPoint]) -> Vector3<f64> {
     let step = (points.len() / 8_000).max(1);
     let sample: Vec<Vector3<f64>> = points
         .iter()
@@ -69,7 +69,7 @@ pub fn level_up_direction(up: Vector3<f64>, points: &[MapPoint]) -> Vector3<f64>
 /// Draws the map from above (along `up`), each pixel the highest point below
 /// the ceiling in its class colour (its real colour when unlabelled), with the
 /// keyframe path, a 1 m scale bar and a legend of the classes present.
-pub fn render_topdown(
+pub(crate) fn render_topdown(
     path: impl AsRef<Path>,
     title: &str,
     points: &[MapPoint],

@@ -56,7 +56,7 @@ pub enum DepthMode {
 pub type Log = Arc<dyn Fn(&str) + Send + Sync>;
 
 /// A log that prints to standard error.
-pub fn stderr_log() -> Log {
+pub(crate) fn stderr_log() -> Log {
     Arc::new(|m: &str| eprintln!("{m}"))
 }
 

@@ -37,7 +37,7 @@ const MAX_PLAUSIBLE_SCALE: f64 = 3.0;
 
 /// Measures the anchors of a finished run and, in monocular mode with a camera height, scales
 /// `out` by the floor's. `ratios` are the keyframes' multi-view / predicted depth ratios.
-pub fn anchor_scale(out: &mut SlamOutput, cfg: &SlamConfig, ratios: &[f64]) -> ScaleReport {
+pub(crate) fn anchor_scale(out: &mut SlamOutput, cfg: &SlamConfig, ratios: &[f64]) -> ScaleReport {
     let monocular = out.depth == super::DepthMode::Predicted;
     let given = (cfg.scale.camera_height > 0.0).then_some(cfg.scale.camera_height);
     let mut report = ScaleReport {

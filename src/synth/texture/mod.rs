@@ -18,7 +18,7 @@ pub type Rgb = [f32; 3];
 
 /// Linear reflectance of an 8-bit display colour (gamma 2 approximation, the
 /// inverse of the renderer's output encoding).
-pub const fn srgb(r: u8, g: u8, b: u8) -> Rgb {
+pub(crate) const fn srgb(r: u8, g: u8, b: u8) -> Rgb {
     let (r, g, b) = (r as f32 / 255.0, g as f32 / 255.0, b as f32 / 255.0);
     [r * r, g * g, b * b]
 }

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The speed/accuracy ladder of RGB-D `slam`: each rung's frames/s, ATE and FPFDCNN's Table 6
+# matching accuracy on one TUM-layout sequence, so a user on a slower machine can pick a rung
+# (docs/performance.md).
+#
+#   scripts/speed_ladder.sh [SEQUENCE [CAMERA]]     (default: ../shared/data/tum_fr1_rpy_head80 fr1)
+#
+# Environment: BIN (default target/release, built by cargo build --release --bins), OUT
+# (default runs/speed_ladder), BACKEND (default flex), REPEAT (runs per rung, the fastest
+# kept; default 2). Each rung runs alone; run it on an otherwise idle machine.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+SEQ=${1:-../shared/data/tum_fr1_rpy_head80}
+CAM=${2:-fr1}
+BIN=${BIN:-target/release}
+OUT=${OUT:-runs/speed_ladder}
+BACKEND=${BACKEND:-flex}
+REPEAT=${REPEAT:-2}
+mkdir -p "$OUT"
+
+# rung name | slam flags | fpfdcnn_input_scale (empty: ORB keypoints)
+rungs=(
+    "FPFDCNN + SDFCNN labels (default)|--features fpfdcnn --labels sdfcnn|1.0"
+    "FPFDCNN, no labels|--features fpfdcnn --labels none|1.0"
+    "FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75"
+    "FPFDCNN at 0.75 scale, no labels|--features fpfdcnn --labels none|0.75"
+    "FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5"
+    "ORB + SDFCNN labels|--features orb --labels sdfcnn|"
+    "ORB, no labels|--features orb --labels none|"
+)
+
+field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
+
+table=$OUT/ladder.md
+{
+    echo "| rung | frames/s | ATE RMSE (m) | Table 6 accuracy (clear) |"
+    echo "|---|---|---|---|"
+} > "$table"
+for k in "${!rungs[@]}"; do
+    IFS='|' read -r name flags scale <<< "${rungs[$k]}"
+    cfg=$OUT/rung_$k.toml
+    sed "s/^fpfdcnn_input_scale = .*/fpfdcnn_input_scale = ${scale:-1.0}/" configs/slam/default.toml > "$cfg"
+    best_fps=0
+    for r in $(seq "$REPEAT"); do
+        # shellcheck disable=SC2086
+        "$BIN/slam" --sequence "$SEQ" --camera "$CAM" --depth sensor $flags --config "$cfg" \
+            --backend "$BACKEND" --out "$OUT/rung_$k" --overwrite > "$OUT/rung_$k.log" 2>&1
+        fps=$(field "$OUT/rung_$k/report.json" "d['fps']")
+        best_fps=$(python3 -c "print(max($best_fps, $fps))")
+    done
+    ate=$(field "$OUT/rung_$k/report.json" "'%.4f' % d['ate']['stats']['rmse']")
+    if [ -n "$scale" ]; then
+        "$BIN/eval" matching --sequence "$SEQ" --camera "$CAM" --fpfdcnn-scale "$scale" \
+            --backend "$BACKEND" --json "$OUT/matching_$k.json" > /dev/null
+        acc=$(field "$OUT/matching_$k.json" "'%.3f' % d['fpfdcnn_range']['clean']['accuracy']")
+    else
+        "$BIN/eval" matching --sequence "$SEQ" --camera "$CAM" --orb-only \
+            --json "$OUT/matching_$k.json" > /dev/null
+        acc=$(field "$OUT/matching_$k.json" "'%.3f' % d['orb_bf']['clean']['accuracy']")
+    fi
+    echo "| $name | $(printf '%.2f' "$best_fps") | $ate | $acc |" | tee -a "$table"
+done
+echo "wrote $table"

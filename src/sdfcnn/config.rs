@@ -241,6 +241,9 @@ impl SdfcnnTrainConfig {
         if self.data.train.is_empty() && self.data.video.is_empty() {
             return Err("[data] train lists no dataset folder (and video no recording)".into());
         }
+        if self.data.train.is_empty() && self.init.is_none() {
+            return Err("[data] train = [] (video alone) needs init = a trained SDFCNN: the photometric loss fine-tunes depth, it cannot start a network".into());
+        }
         let imagenet = self.init.as_ref().and_then(|p| p.extension());
         if self.data.train.is_empty()
             && imagenet.is_some_and(|e| e.eq_ignore_ascii_case("safetensors"))

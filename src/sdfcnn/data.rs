@@ -12,7 +12,7 @@
 //! ([`super::focal`]), zoom included.
 //!
 //! Augmentation is reproducible: sample `i` of batch `b` of epoch `e` draws from a generator
-//! seeded by the `i`-th number of `crate::training::batch_rng``(seed, e, b)`, whatever
+//! seeded by the `i`-th number of `crate::training::batch_rng(seed, e, b)`, whatever
 //! thread decodes it, so a resumed run sees exactly the batches of an uninterrupted one.
 
 use burn::prelude::*;
@@ -34,6 +34,9 @@ pub struct SegDepthData {
     index: Vec<(usize, usize)>,
     /// Canonical focal length in image widths ([`super::focal`]); `None`: metric depth as is.
     canonical: Option<f64>,
+    /// Synthetic sources render their first draw whatever the generator (validation: the same
+    /// views every epoch and whatever the batch size).
+    fixed_draws: bool,
 }
 
 impl SegDepthData {
@@ -62,6 +65,7 @@ impl SegDepthData {
             sets,
             index,
             canonical: None,
+            fixed_draws: false,
         })
     }
 
@@ -69,6 +73,12 @@ impl SegDepthData {
     /// ([`super::focal`]); `None` keeps metric depth.
     pub fn with_canonical(mut self, focal: Option<f64>) -> Self {
         self.canonical = focal;
+        self
+    }
+
+    /// Synthetic sources keep to their first draw (validation data).
+    pub fn with_fixed_draws(mut self) -> Self {
+        self.fixed_draws = true;
         self
     }
 
@@ -147,7 +157,7 @@ impl SegDepthData {
         let set = &self.sets[k];
         // A synthetic source renders a new view each draw (from the sample's generator), with
         // its own focal length.
-        let fresh = if set.is_synthetic() {
+        let fresh = if set.is_synthetic() && !self.fixed_draws {
             rng.next_u64()
         } else {
             0

@@ -82,7 +82,6 @@ impl DataSource {
         self.path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-            && self.path.is_file()
     }
 
     /// Whether `path` is a TUM RGB-D sequence folder rather than a NYU layout.
@@ -180,6 +179,7 @@ enum Images {
 /// A synthetic source: `samples` views of fresh rooms, rendered when loaded.
 #[derive(Debug, Clone)]
 struct Stream {
+    path: PathBuf,
     cfg: crate::synth::SynthConfig,
     camera: Camera,
     samples: usize,
@@ -199,7 +199,8 @@ impl Stream {
             camera.fx = f;
             camera.fy = f;
         }
-        let view = crate::synth::stream_view(&self.cfg, &camera, seed)?;
+        let view = crate::synth::stream_view(&self.cfg, &camera, seed)
+            .map_err(|e| Error::invalid(&self.path, format!("view {j}: {e}")))?;
         let labels = LabelImage {
             width: view.labels.width(),
             height: view.labels.height(),
@@ -440,6 +441,7 @@ fn open_synth(s: &DataSource) -> Result<Set> {
     cfg.validate()?;
     let camera = cfg.camera()?;
     let stream = Stream {
+        path: s.path.clone(),
         camera: camera.clone(),
         cfg,
         samples: s.samples.unwrap_or(0),

@@ -19,9 +19,10 @@ use crate::geometry::Pose;
 use crate::trajectory::Trajectory;
 use nalgebra::Vector2;
 
-/// Farthest a frame's stamp may be from a trajectory pose, seconds (TUM's 30 Hz frames are
-/// 0.033 s apart; poses are interpolated between the two around it).
-const MAX_POSE_GAP: f64 = 0.05;
+/// Farthest a frame's stamp may be from the nearest trajectory pose, seconds: well under a
+/// frame interval (0.033 s at 30 Hz), so that a frame `slam` did not place takes no
+/// neighbour's pose, and enough for 100 Hz ground truth (poses between two are interpolated).
+const MAX_POSE_GAP: f64 = 0.01;
 
 /// One recording of a config's `[data] video` list.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

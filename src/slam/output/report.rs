@@ -97,7 +97,9 @@ pub struct StageReport {
     /// Calls per second of stage time: the rate the stage alone could sustain.
     pub per_second: f64,
     /// The stage's share of the CPU time the run had: its seconds over the run's wall time
-    /// times the cores (a stage that kept one of two cores busy all run: 0.5).
+    /// times the cores (a stage whose calls took one of two cores all run: 0.5). A stage's
+    /// seconds are the wall time of its calls, so waiting inside a call counts and the
+    /// threads a call spreads its work over do not.
     #[serde(default)]
     pub cpu_share: f64,
 }
@@ -560,7 +562,8 @@ impl Report {
         let _ = writeln!(
             s,
             "\nPer second: calls per second of the stage's own time, the rate it alone could \
-             sustain. CPU share: its time over the run's wall time times the machine's cores."
+             sustain. CPU share: the wall time of its calls over the run's wall time times the machine's \
+             cores (waiting inside a call counts; the threads a call spreads over do not)."
         );
         if self.feature_workers > 1 {
             let _ = writeln!(

@@ -240,6 +240,16 @@ pub fn resolve(path: &Path, config_path: &Path) -> PathBuf {
     }
 }
 
+/// A source's `camera`: a preset name (`fr1`, ...) as it is, a camera file resolved as
+/// [`resolve`] does.
+pub fn resolve_camera(spec: &str, config_path: &Path) -> String {
+    if crate::camera::Camera::preset(spec).is_some() {
+        spec.to_string()
+    } else {
+        resolve(Path::new(spec), config_path).display().to_string()
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;

@@ -7,7 +7,7 @@
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-use super::data::resolve;
+use super::data::{resolve, resolve_camera};
 use super::focal::{NYU_FX, nyu_fx_fits};
 use crate::camera::Camera;
 use crate::dataset::labels::VOID;
@@ -92,13 +92,7 @@ impl DataSource {
     /// The source with its relative paths taken from `config_path`'s folder where they do not
     /// exist from the working directory ([`resolve`]).
     pub fn resolved(&self, config_path: &Path) -> Self {
-        let camera = self.camera.as_ref().map(|c| {
-            if Camera::preset(c).is_some() {
-                c.clone()
-            } else {
-                resolve(Path::new(c), config_path).display().to_string()
-            }
-        });
+        let camera = self.camera.as_ref().map(|c| resolve_camera(c, config_path));
         DataSource {
             path: resolve(&self.path, config_path),
             split: self.split.as_ref().map(|p| resolve(p, config_path)),

@@ -8,7 +8,7 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-use super::data::resolve;
+use super::data::{resolve, resolve_camera};
 use super::focal::to_canonical;
 use crate::camera::{Camera, Distortion};
 use crate::dataset::augment::{AugmentConfig, augment};
@@ -51,13 +51,7 @@ impl VideoSource {
     /// The source with its relative paths taken from `config_path`'s folder where they do not
     /// exist from the working directory.
     pub fn resolved(&self, config_path: &Path) -> Self {
-        let camera = self.camera.as_ref().map(|c| {
-            if Camera::preset(c).is_some() {
-                c.clone()
-            } else {
-                resolve(Path::new(c), config_path).display().to_string()
-            }
-        });
+        let camera = self.camera.as_ref().map(|c| resolve_camera(c, config_path));
         VideoSource {
             path: resolve(&self.path, config_path),
             trajectory: resolve(&self.trajectory, config_path),

@@ -6,9 +6,10 @@
 //! software Vulkan driver, which the wgpu backend then uses.
 #![cfg(any(feature = "wgpu", feature = "cuda"))]
 
+use burn::module::Module;
 use burn::prelude::*;
 use sdf_slam::fpfdcnn::FpfdcnnConfig;
-use sdf_slam::nn::{BackendKind, seeded_init};
+use sdf_slam::nn::{BackendKind, OpImpl, ShapeTrace, seeded_init, set_op_impl};
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
 
 /// The GPU backends this build has, with a device here.
@@ -114,70 +115,287 @@ fn sdfcnn_forward_matches_the_cpu() {
     }
 }
 
-/// Fails with Burn 0.22.1's wgpu (lavapipe, 2026-11-26): the depth term comes out 1.09 where
-/// the CPU gives 3.50 (right again while a second handle on the outputs is alive: in-place
-/// reuse), and even then the input gradient differs by up to 62 % of its largest value
-/// (composite or Burn convolutions alike), so `train` refuses the GPU backends; run with
-/// `--ignored` after a Burn upgrade.
-#[test]
-#[ignore = "Burn 0.22.1 wgpu: SDFCNN gradients differ from the CPU's (README, GPU backends)"]
-fn sdfcnn_training_loss_and_gradient_match_the_cpu() {
-    let cpu = BackendKind::Flex.autodiff_device().expect("flex");
-    let [h, w] = [32, 48];
-    let run = |device: &Device| {
-        let cfg = SdfcnnConfig::new()
-            .with_inner_size([h, w])
-            .with_decoder_dim(32);
-        let model = seeded_init(cfg.init(device).expect("init"), 5);
-        let x = ramp([2, 3, h, w], device).require_grad();
-        // Labels cycling through the classes with void pixels; depth 0.5-3 m with holes.
-        let labels: Vec<i64> = (0..2 * h * w)
-            .map(|i| if i % 7 == 0 { 255 } else { (i % 40) as i64 })
-            .collect();
-        let labels = Tensor::<3, Int>::from_data(TensorData::new(labels, [2, h, w]), device);
-        let depth: Vec<f32> = (0..2 * h * w)
-            .map(|i| {
-                if i % 11 == 0 {
-                    0.0
-                } else {
-                    0.5 + (i % 50) as f32 / 20.0
-                }
-            })
-            .collect();
-        let depth = Tensor::<4>::from_data(TensorData::new(depth, [2, 1, h, w]), device);
-        // Batch norms in training mode; the loss consumes the outputs (eq. 21, berHu).
-        let out = model.forward_quarter(x.clone()).expect("forward");
-        let loss = SdfcnnLossConfig::default().forward(out, labels, depth);
-        let parts = [
-            values(loss.seg),
-            values(loss.depth),
-            values(loss.total.clone()),
-        ]
-        .concat();
-        let grads = loss.total.backward();
-        (parts, values(x.grad(&grads).expect("gradient")))
-    };
-    let want = run(&cpu);
-    for (b, device) in gpu_devices() {
-        let got = run(&device.autodiff());
-        assert_close(
-            &format!("{b} SDFCNN eq. 21 (seg, depth, total)"),
-            &got.0,
-            &want.0,
-            1e-4,
-        );
-        assert_close(&format!("{b} SDFCNN input gradient"), &got.1, &want.1, 1e-3);
+/// Every parameter's gradient in the module's order, with its shape.
+struct ParamGrads<'a> {
+    grads: &'a burn::tensor::Gradients,
+    out: Vec<(Vec<usize>, Vec<f32>)>,
+}
+
+impl burn::module::ModuleVisitor for ParamGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+        if let Some(g) = param.val().grad(self.grads) {
+            self.out.push((g.dims().to_vec(), values(g)));
+        }
     }
 }
 
+/// One training step's tensors: every layer's output (forward, in order), the loss terms, the
+/// input's gradient and every parameter's gradient.
+struct Step {
+    layers: Vec<(String, Vec<f32>)>,
+    loss: Vec<f32>,
+    input_grad: Vec<f32>,
+    param_grads: Vec<(Vec<usize>, Vec<f32>)>,
+}
+
+/// SDFCNN's training step (batch norms in training mode, eq. 21 with berHu, targets at the
+/// input size resized by the loss) at `[h, w]` with `batch` images and decoder width `dim`.
+fn sdfcnn_step(device: &Device, [h, w]: [usize; 2], batch: usize, dim: usize) -> Step {
+    let cfg = SdfcnnConfig::new()
+        .with_inner_size([h, w])
+        .with_decoder_dim(dim);
+    let model = seeded_init(cfg.init(device).expect("init"), 5);
+    let x = ramp([batch, 3, h, w], device).require_grad();
+    // Labels cycling through the classes with void pixels; depth 0.5-3 m with holes.
+    let n = batch * h * w;
+    let labels: Vec<i64> = (0..n)
+        .map(|i| if i % 7 == 0 { 255 } else { (i % 40) as i64 })
+        .collect();
+    let labels = Tensor::<3, Int>::from_data(TensorData::new(labels, [batch, h, w]), device);
+    let depth: Vec<f32> = (0..n)
+        .map(|i| {
+            if i % 11 == 0 {
+                0.0
+            } else {
+                0.5 + (i % 50) as f32 / 20.0
+            }
+        })
+        .collect();
+    let depth = Tensor::<4>::from_data(TensorData::new(depth, [batch, 1, h, w]), device);
+    let mut trace = ShapeTrace::with_values();
+    let out = model
+        .forward_quarter_traced(x.clone(), &mut trace)
+        .expect("forward");
+    let layers = trace
+        .layers()
+        .iter()
+        .map(|l| (l.name.clone(), l.values.clone().unwrap_or_default()))
+        .collect();
+    let loss = SdfcnnLossConfig::default().forward(out, labels, depth);
+    let parts = [
+        values(loss.seg),
+        values(loss.depth),
+        values(loss.total.clone()),
+    ]
+    .concat();
+    let grads = loss.total.backward();
+    let mut visitor = ParamGrads {
+        grads: &grads,
+        out: Vec::new(),
+    };
+    model.visit(&mut visitor);
+    Step {
+        layers,
+        loss: parts,
+        input_grad: values(x.grad(&grads).expect("gradient")),
+        param_grads: visitor.out,
+    }
+}
+
+/// Largest difference relative to the reference's largest magnitude.
+fn relative(gpu: &[f32], cpu: &[f32]) -> f32 {
+    let scale = cpu.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
+    let worst = gpu
+        .iter()
+        .zip(cpu)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    if gpu.len() == cpu.len() {
+        worst / scale
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// How far two training steps part, each figure relative to the reference's largest value:
+/// the first forward layer past `tol` (the bisection) and the worst one, the loss terms, the
+/// input gradient, and the parameter gradients, both against the largest gradient of the whole
+/// model and against each parameter's own largest (where a gradient that is zero in exact
+/// arithmetic, e.g. a batch norm's shift before another batch norm, is float noise alone).
+#[derive(Debug)]
+#[allow(dead_code)] // reported through `Debug`
+struct Parting {
+    first_layer: Option<(String, f32)>,
+    worst_layer: (String, f32),
+    loss: f32,
+    input_grad: f32,
+    grads_vs_model: (usize, f32),
+    grads_vs_own: (usize, f32),
+}
+
+fn parting(gpu: &Step, cpu: &Step, tol: f32) -> Parting {
+    let mut first_layer = None;
+    let mut worst_layer = (String::new(), 0.0f32);
+    for ((name, g), (_, c)) in gpu.layers.iter().zip(&cpu.layers) {
+        let e = relative(g, c);
+        if std::env::var("SDF_SLAM_TRACE").is_ok() {
+            eprintln!("  {name} {e:.2e}");
+        }
+        if e > worst_layer.1 {
+            worst_layer = (name.clone(), e);
+        }
+        if e > tol && first_layer.is_none() {
+            first_layer = Some((name.clone(), e));
+        }
+    }
+    assert_eq!(gpu.param_grads.len(), cpu.param_grads.len(), "parameters");
+    let model_scale = cpu
+        .param_grads
+        .iter()
+        .flat_map(|(_, c)| c.iter())
+        .fold(1e-12f32, |m, v| m.max(v.abs()));
+    let (mut vs_model, mut vs_own) = ((0, 0.0f32), (0, 0.0f32));
+    for (k, ((_, g), (_, c))) in gpu.param_grads.iter().zip(&cpu.param_grads).enumerate() {
+        let own = relative(g, c);
+        let worst = g
+            .iter()
+            .zip(c)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        if worst / model_scale > vs_model.1 {
+            vs_model = (k, worst / model_scale);
+        }
+        if own > vs_own.1 {
+            vs_own = (k, own);
+        }
+    }
+    Parting {
+        first_layer,
+        worst_layer,
+        loss: relative(&gpu.loss, &cpu.loss),
+        input_grad: relative(&gpu.input_grad, &cpu.input_grad),
+        grads_vs_model: vs_model,
+        grads_vs_own: vs_own,
+    }
+}
+
+/// A training step of SDFCNN on the GPU against the CPU, at a small size and at the bundled
+/// recipe's (144x192, batch 8, Table 13's decoder width). Two CPU implementations of the same
+/// step (this crate's kernels and Burn's ops, both on flex) are the yardstick: in float32 they
+/// already part by 2.9e-3 of the model's largest gradient at 144x192 and by 25 % at 32x48,
+/// where the last encoder layers' batch norms see four values a channel (flex, 2026-12-07).
+/// The GPU must give the loss terms within 1e-4 (or the CPUs' distance, if larger) and the
+/// input and parameter gradients within four times the CPUs' distance; the first forward layer
+/// past 1e-4 and the worst are reported (the bisection).
 #[test]
-fn sdfcnn_training_on_a_gpu_backend_is_refused_before_reading_data() {
+fn sdfcnn_training_step_matches_the_cpu_layer_by_layer() {
+    let cpu = BackendKind::Flex.autodiff_device().expect("flex");
+    let mut failures = Vec::new();
+    for (size, batch, dim) in [([32, 48], 2, 32), ([144, 192], 8, 256)] {
+        let want = sdfcnn_step(&cpu, size, batch, dim);
+        set_op_impl(OpImpl::Burn);
+        let control = sdfcnn_step(&cpu, size, batch, dim);
+        set_op_impl(OpImpl::Auto);
+        let floor = parting(&control, &want, 1e-4);
+        eprintln!("SDFCNN {size:?} batch {batch}, flex with Burn's ops against flex: {floor:?}");
+        for (b, device) in gpu_devices() {
+            let got = sdfcnn_step(&device.autodiff(), size, batch, dim);
+            let p = parting(&got, &want, 1e-4);
+            eprintln!("SDFCNN {size:?} batch {batch}, {b} against flex: {p:?}");
+            let bound = |gpu: f32, cpu: f32, least: f32| gpu <= least.max(4.0 * cpu);
+            if !bound(p.loss, floor.loss, 1e-4)
+                || !bound(p.grads_vs_model.1, floor.grads_vs_model.1, 1e-4)
+                || !bound(p.input_grad, floor.input_grad, 1e-4)
+            {
+                failures.push(format!("{b} SDFCNN {size:?} batch {batch}: {p:?}"));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `train` on the GPU: the tiny SDFCNN config's first epochs (seeded weights, the same batches
+/// and augmentation on every backend). The first epoch's losses, from the same weights, are
+/// within 1e-3 of flex's; later epochs within 1e-2, since Adam's first steps, about `lr` times
+/// the sign of each gradient, turn float noise into different weights: ndarray and flex
+/// themselves part by 2.3e-3 on the training loss by the fourth epoch (lavapipe by 5.4e-3 at
+/// most, 2026-12-07).
+#[test]
+fn the_tiny_sdfcnn_config_trains_on_the_gpu_as_on_the_cpu() {
+    let gpus = gpu_devices();
+    if gpus.is_empty() {
+        return;
+    }
+    let root = env!("CARGO_MANIFEST_DIR");
+    let train = |config: &str, epochs: &str, backend: &str| {
+        let out = std::env::temp_dir().join(format!(
+            "sdf_gpu_{}_{backend}_{}",
+            config.trim_end_matches(".toml"),
+            std::process::id()
+        ));
+        let run = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+            .current_dir(root)
+            .args(["--config", &format!("{root}/configs/train/{config}")])
+            .args(["--backend", backend, "--epochs", epochs, "--quiet", "--out"])
+            .arg(&out)
+            .output()
+            .expect("train runs");
+        assert!(
+            run.status.success(),
+            "train {config} --backend {backend}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).expect("metrics.csv");
+        let _ = std::fs::remove_dir_all(&out);
+        let mut lines = csv.lines();
+        let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+        let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+        let (t, v) = (col("train_loss"), col("val_loss"));
+        lines
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (
+                    f[t].parse::<f64>().ok(),
+                    f[v].parse::<f64>().expect("val_loss"),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let mut failures = Vec::new();
+    for (config, epochs) in [("sdfcnn_tiny.toml", "4")] {
+        let cpu = train(config, epochs, "flex");
+        for (b, _) in &gpus {
+            let gpu = train(config, epochs, &b.to_string());
+            assert_eq!(gpu.len(), cpu.len(), "{config} on {b}: epochs");
+            for (epoch, (g, c)) in gpu.iter().zip(&cpu).enumerate() {
+                eprintln!(
+                    "{config} on {b}, epoch {}: train {:?} (flex {:?}), validation {} (flex {})",
+                    epoch + 1,
+                    g.0,
+                    c.0,
+                    g.1,
+                    c.1
+                );
+                let tol = if epoch == 0 { 1e-3 } else { 1e-2 };
+                let close = |a: f64, b: f64| (a - b).abs() <= tol * b.abs().max(1e-6);
+                let train_close = match (g.0, c.0) {
+                    (Some(a), Some(b)) => close(a, b),
+                    (a, b) => a.is_none() && b.is_none(),
+                };
+                if !close(g.1, c.1) || !train_close {
+                    failures.push(format!(
+                        "{config} on {b}, epoch {}: {g:?} vs {c:?}",
+                        epoch + 1
+                    ));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// FPFDCNN's first tiny epoch on lavapipe ended at a training loss of 7.41 where flex gives
+/// 7.19 (2026-12-07; its forward pass, detector losses and a gradient match), so `train`
+/// refuses it on the GPU, before reading any data.
+#[test]
+fn fpfdcnn_training_on_a_gpu_backend_is_refused_before_reading_data() {
     let root = env!("CARGO_MANIFEST_DIR");
     let out = std::env::temp_dir().join(format!("sdf_gpu_refused_{}", std::process::id()));
     let run = std::process::Command::new(env!("CARGO_BIN_EXE_train"))
+        .current_dir(root)
         .args([
             "--config",
-            &format!("{root}/configs/train/sdfcnn_tiny.toml"),
+            &format!("{root}/configs/train/fpfdcnn_tiny.toml"),
         ])
         .args(["--backend", "wgpu", "--out"])
         .arg(&out)
@@ -187,7 +405,7 @@ fn sdfcnn_training_on_a_gpu_backend_is_refused_before_reading_data() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success(), "{err}");
     assert!(
-        err.contains("SDFCNN training on `wgpu` is refused"),
+        err.contains("FPFDCNN training on `wgpu` is refused"),
         "{err}"
     );
     assert!(!out.exists(), "no run folder before the refusal");

@@ -37,7 +37,7 @@
 //! positions with the bilinear weights of the FD layer, as a sparse matrix
 //! product, so the loss is differentiable on every backend.
 
-use crate::nn::taps_at;
+use crate::nn::{sum_all, taps_at};
 use burn::prelude::*;
 use burn::tensor::activation::log_softmax;
 use serde::{Deserialize, Serialize};
@@ -224,8 +224,8 @@ pub(crate) fn detector_bce(prob: Tensor<4>, target: Tensor<4>, pos_weight: f64) 
             .neg()
             .add_scalar(1.0)
             .mul(p.neg().add_scalar(1.0).log());
-    let total = weights.clone().sum();
-    ll.mul(weights).sum().neg().div(total)
+    let total = sum_all(weights.clone());
+    sum_all(ll.mul(weights)).neg().div(total)
 }
 
 /// Shift consistency of the FP probability maps `prob` (`[N, 1, H, W]`, of an image) and
@@ -267,8 +267,8 @@ pub(crate) fn detector_cell_ce(logits: Tensor<4>, target: Tensor<4>, cell: usize
     let has = count.clone().greater_elem(0.0).float();
     let dist = t.div(count.clamp_min(1.0));
     let ce = dist.mul(log_softmax(logits, 1)).sum_dim(1).neg();
-    let cells = has.clone().sum().clamp_min(1.0);
-    ce.mul(has).sum().div(cells)
+    let cells = sum_all(has.clone()).clamp_min(1.0);
+    sum_all(ce.mul(has)).div(cells)
 }
 
 /// The `[M, Hc·Wc]` matrix that samples a coarse map (of an image of
@@ -369,8 +369,8 @@ pub(crate) fn descriptor_infonce(
     let eye = Tensor::<2>::eye(m, &device);
     let (ab, ba) = match near {
         None => (
-            log_softmax(logits.clone(), 1).mul(eye.clone()).sum(),
-            log_softmax(logits.clone(), 0).mul(eye).sum(),
+            sum_all(log_softmax(logits.clone(), 1).mul(eye.clone())),
+            sum_all(log_softmax(logits.clone(), 0).mul(eye)),
         ),
         Some(n) => {
             // Rows A -> B, then B -> A (the transpose), each with its own near negatives.
@@ -383,8 +383,8 @@ pub(crate) fn descriptor_infonce(
             let pad = Tensor::<2>::zeros([m, k], &device);
             let pick = Tensor::cat(vec![eye, pad], 1);
             (
-                log_softmax(rows_ab, 1).mul(pick.clone()).sum(),
-                log_softmax(rows_ba, 1).mul(pick).sum(),
+                sum_all(log_softmax(rows_ab, 1).mul(pick.clone())),
+                sum_all(log_softmax(rows_ba, 1).mul(pick)),
             )
         }
     };

@@ -13,6 +13,7 @@ use super::loss::{
 };
 use super::model::Fpfdcnn;
 use crate::error::{Error, Result};
+use crate::nn::sum_all;
 use crate::training::fit::{Fit, Learner, Meter, Plot, Step, fit};
 use crate::training::{RunDir, RunOptions, batch_rng};
 use burn::prelude::*;
@@ -120,7 +121,7 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
     let desc = if desc_terms.is_empty() {
         Tensor::<1>::zeros([1], &det.device())
     } else {
-        Tensor::cat(desc_terms, 0).sum().div_scalar(n)
+        sum_all(Tensor::cat(desc_terms, 0)).div_scalar(n)
     };
     let detector = det.clone().into_scalar::<f32>() as f64;
     let localization = loc.clone().into_scalar::<f32>() as f64;
@@ -137,7 +138,7 @@ fn batch_loss(model: &Fpfdcnn, batch: FpBatch, cfg: &FpfdcnnTrainConfig) -> Resu
     let mut dshift_value = (l.descriptor_shift_consistency > 0.0).then_some(0.0);
     if !dshift_terms.is_empty() {
         let k = dshift_terms.len() as f64;
-        let t = Tensor::cat(dshift_terms, 0).sum().div_scalar(k);
+        let t = sum_all(Tensor::cat(dshift_terms, 0)).div_scalar(k);
         dshift_value = Some(t.clone().into_scalar::<f32>() as f64);
         total = total + t.mul_scalar(l.descriptor_shift_consistency);
     }

@@ -167,6 +167,22 @@ pub(crate) fn pool_path(device: &Device) -> PoolPath {
 /// kernel (see [`OpImpl`]), by Burn otherwise. Same parameters, same result, same gradients.
 pub fn conv2d(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
     let device = x.device();
+    let y = conv2d_any(layer, x);
+    let [n, c, h, w] = y.dims();
+    if c == 1 && !is_cpu(&device) {
+        // Burn 0.22.1's GPU convolution returns a channels-last view; with one channel that
+        // view's size-1 channel dimension has stride 1, and a fused element-wise chain that
+        // reads it beside an already computed tensor then indexes the other wrong (SDFCNN's
+        // depth loss came out 1.12 for 3.50: `tests/gpu_ops.rs`). Flattening and restoring
+        // the shape gives it ordinary strides.
+        return y.reshape([n, h * w]).reshape([n, 1, h, w]);
+    }
+    y
+}
+
+/// [`conv2d`] before the GPU layout fix.
+fn conv2d_any(layer: &Conv2d, x: Tensor<4>) -> Tensor<4> {
+    let device = x.device();
     let kind = ConvKind::of(layer);
     let kernel = match kind {
         ConvKind::Depthwise | ConvKind::Dense => conv_uses_kernel(&device),

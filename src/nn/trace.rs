@@ -1,9 +1,11 @@
-//! Layer output shapes recorded while a forward pass runs (for `train summary`).
+//! Layer output shapes recorded while a forward pass runs (for `train summary`), and
+//! optionally their values (to find the first layer where two backends part:
+//! `tests/gpu_backends.rs`).
 
 use burn::prelude::*;
 
 /// One recorded layer: its table name, what it does, and the shape it produced.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct LayerShape {
     /// Name as in the paper's tables (e.g. `L3`, `Layer5_9`).
     pub name: String,
@@ -11,6 +13,8 @@ pub struct LayerShape {
     pub method: String,
     /// Output shape, `[N, C, H, W]`.
     pub shape: Vec<usize>,
+    /// The output's values, when the trace keeps them ([`ShapeTrace::with_values`]).
+    pub values: Option<Vec<f32>>,
 }
 
 /// Collects [`LayerShape`]s when enabled; a disabled trace records nothing and allocates
@@ -18,6 +22,7 @@ pub struct LayerShape {
 #[derive(Debug, Default)]
 pub struct ShapeTrace {
     enabled: bool,
+    values: bool,
     layers: Vec<LayerShape>,
 }
 
@@ -26,6 +31,17 @@ impl ShapeTrace {
     pub fn enabled() -> Self {
         Self {
             enabled: true,
+            values: false,
+            layers: Vec::new(),
+        }
+    }
+
+    /// A trace that also keeps every recorded output's values (read back to the host as
+    /// they are recorded, which makes a lazy backend compute them there).
+    pub fn with_values() -> Self {
+        Self {
+            enabled: true,
+            values: true,
             layers: Vec::new(),
         }
     }
@@ -47,6 +63,10 @@ impl ShapeTrace {
                 name: name.into(),
                 method: method.into(),
                 shape: tensor.dims().to_vec(),
+                values: self.values.then(|| {
+                    let data = tensor.clone().into_data().convert::<f32>();
+                    data.try_to_vec::<f32>().unwrap_or_default()
+                }),
             });
         }
     }

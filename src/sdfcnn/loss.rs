@@ -32,6 +32,7 @@ use serde::{Deserialize, Serialize};
 
 use super::SdfcnnOutput;
 use crate::dataset::labels::VOID;
+use crate::nn::sum_all;
 
 /// Depth regression loss `L` of eq. 21.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -174,19 +175,15 @@ pub fn cross_entropy_void(logits: Tensor<4>, labels: Tensor<3, Int>) -> Tensor<1
         .gather(1, index)
         .neg()
         .mask_fill(void.clone(), 0.0);
-    let count = void.bool_not().float().sum().clamp_min(1.0).detach();
-    nll.sum() / count
+    let count = sum_all(void.bool_not().float()).clamp_min(1.0).detach();
+    sum_all(nll) / count
 }
 
 /// Mean depth loss of `pred` against `gt` (both `[N, 1, H, W]`) over pixels with `gt > 0`;
 /// 0 when there is none. `berhu_ratio` sets the berHu threshold `c = ratio · max |r|`.
 pub fn depth_loss(pred: Tensor<4>, gt: Tensor<4>, kind: DepthLoss, berhu_ratio: f64) -> Tensor<1> {
     let invalid = gt.clone().lower_equal_elem(0.0);
-    let count = invalid
-        .clone()
-        .bool_not()
-        .float()
-        .sum()
+    let count = sum_all(invalid.clone().bool_not().float())
         .clamp_min(1.0)
         .detach();
     let r = (pred - gt).mask_fill(invalid.clone(), 0.0);
@@ -209,7 +206,7 @@ pub fn depth_loss(pred: Tensor<4>, gt: Tensor<4>, kind: DepthLoss, berhu_ratio: 
             abs.mask_where(above, quad)
         }
     };
-    per_pixel.mask_fill(invalid, 0.0).sum() / count
+    sum_all(per_pixel.mask_fill(invalid, 0.0)) / count
 }
 
 /// Neighbour strides of the gradient-matching term (MegaDepth uses four scales).
@@ -247,8 +244,8 @@ pub(crate) fn gradient_matching_loss(
         for (a, b) in pairs.into_iter().flatten() {
             let both = valid.clone().slice(a.clone()) * valid.clone().slice(b.clone());
             let diff = (r.clone().slice(a) - r.clone().slice(b)).abs();
-            sum = sum + (diff * both.clone()).sum();
-            count = count + both.sum().detach();
+            sum = sum + sum_all(diff * both.clone());
+            count = count + sum_all(both).detach();
         }
         total = total + sum / count.clamp_min(1.0);
         scales += 1;

@@ -120,7 +120,7 @@ fn non_finite<M: burn::module::Module>(
             };
             if let Some(t) = tensor {
                 self.shapes.push(t.dims().to_vec());
-                self.sums.push(t.sum());
+                self.sums.push(crate::nn::sum_all(t));
             }
         }
     }

@@ -12,6 +12,8 @@ use sdf_slam::fpfdcnn::FpfdcnnConfig;
 use sdf_slam::nn::{BackendKind, OpImpl, ShapeTrace, seeded_init, set_op_impl};
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
 
+mod common;
+
 /// The GPU backends this build has, with a device here.
 fn gpu_devices() -> Vec<(BackendKind, Device)> {
     let require = std::env::var("SDF_SLAM_REQUIRE_GPU").is_ok_and(|v| v == "1");
@@ -44,23 +46,15 @@ fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         .expect("f32")
 }
 
-/// Largest difference relative to the reference's largest magnitude.
+/// Asserts `gpu` within `tol` of `cpu` relative to the reference's largest magnitude.
 fn assert_close(what: &str, gpu: &[f32], cpu: &[f32], tol: f32) {
     assert_eq!(gpu.len(), cpu.len(), "{what}: sizes");
-    let scale = cpu.iter().fold(1e-6f32, |m, v| m.max(v.abs()));
-    let worst = gpu
-        .iter()
-        .zip(cpu)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0f32, f32::max);
+    let e = relative(gpu, cpu);
     assert!(
-        worst <= tol * scale,
-        "{what}: max |gpu - cpu| = {worst} > {tol} x {scale}"
+        e <= tol,
+        "{what}: max |gpu - cpu| / max |cpu| = {e:.2e} > {tol}"
     );
-    eprintln!(
-        "{what}: max |gpu - cpu| / max |cpu| = {:.2e}",
-        worst / scale
-    );
+    eprintln!("{what}: max |gpu - cpu| / max |cpu| = {e:.2e}");
 }
 
 #[test]
@@ -146,22 +140,7 @@ fn sdfcnn_step(device: &Device, [h, w]: [usize; 2], batch: usize, dim: usize) ->
         .with_decoder_dim(dim);
     let model = seeded_init(cfg.init(device).expect("init"), 5);
     let x = ramp([batch, 3, h, w], device).require_grad();
-    // Labels cycling through the classes with void pixels; depth 0.5-3 m with holes.
-    let n = batch * h * w;
-    let labels: Vec<i64> = (0..n)
-        .map(|i| if i % 7 == 0 { 255 } else { (i % 40) as i64 })
-        .collect();
-    let labels = Tensor::<3, Int>::from_data(TensorData::new(labels, [batch, h, w]), device);
-    let depth: Vec<f32> = (0..n)
-        .map(|i| {
-            if i % 11 == 0 {
-                0.0
-            } else {
-                0.5 + (i % 50) as f32 / 20.0
-            }
-        })
-        .collect();
-    let depth = Tensor::<4>::from_data(TensorData::new(depth, [batch, 1, h, w]), device);
+    let (labels, depth) = common::sdfcnn_targets(batch, h, w, device);
     let mut trace = ShapeTrace::with_values();
     let out = model
         .forward_quarter_traced(x.clone(), &mut trace)

@@ -16,6 +16,8 @@ use sdf_slam::nn::{
 };
 use sdf_slam::sdfcnn::loss::{DepthLoss, cross_entropy_void, depth_loss};
 
+mod common;
+
 /// wgpu's first adapter, started once for the tests of this file (the runtime cannot be
 /// started twice), or `None` (reported) when there is none, unless `SDF_SLAM_REQUIRE_GPU=1`.
 fn wgpu_device() -> Option<Device> {
@@ -130,24 +132,9 @@ fn cases() -> Vec<Case> {
             weighted(conv2d(&layer, i[0].clone()), d)
         })
     };
-    let labels = |n: usize, h: usize, w: usize, d: &Device| {
-        let v: Vec<i64> = (0..n * h * w)
-            .map(|i| if i % 7 == 0 { 255 } else { (i % 40) as i64 })
-            .collect();
-        Tensor::<3, Int>::from_data(TensorData::new(v, [n, h, w]), d)
-    };
-    let depth_target = |n: usize, h: usize, w: usize, d: &Device| {
-        let v: Vec<f32> = (0..n * h * w)
-            .map(|i| {
-                if i % 11 == 0 {
-                    0.0
-                } else {
-                    0.5 + (i % 50) as f32 / 20.0
-                }
-            })
-            .collect();
-        Tensor::<4>::from_data(TensorData::new(v, [n, 1, h, w]), d)
-    };
+    let labels = |n: usize, h: usize, w: usize, d: &Device| common::sdfcnn_targets(n, h, w, d).0;
+    let depth_target =
+        |n: usize, h: usize, w: usize, d: &Device| common::sdfcnn_targets(n, h, w, d).1;
     vec![
         // The layers, at the shapes of SDFCNN at 32x48 inside the network.
         conv("conv 3x3 s2 3->32", [3, 32], 3, 2, 1, [2, 3, 32, 48]),

@@ -103,3 +103,34 @@ pub fn write_seven_scenes_frame(
     std::fs::write(format!("{}.pose.txt", stem.display()), text).unwrap();
     pose
 }
+
+/// SDFCNN training targets for `n` images of `h` x `w` on `device`: labels cycling through the
+/// 40 classes with every 7th pixel void (255), and depth 0.5-2.95 m with every 11th pixel
+/// missing (0).
+pub fn sdfcnn_targets(
+    n: usize,
+    h: usize,
+    w: usize,
+    device: &burn::prelude::Device,
+) -> (
+    burn::prelude::Tensor<3, burn::prelude::Int>,
+    burn::prelude::Tensor<4>,
+) {
+    use burn::prelude::*;
+    let labels: Vec<i64> = (0..n * h * w)
+        .map(|i| if i % 7 == 0 { 255 } else { (i % 40) as i64 })
+        .collect();
+    let depth: Vec<f32> = (0..n * h * w)
+        .map(|i| {
+            if i % 11 == 0 {
+                0.0
+            } else {
+                0.5 + (i % 50) as f32 / 20.0
+            }
+        })
+        .collect();
+    (
+        Tensor::from_data(TensorData::new(labels, [n, h, w]), device),
+        Tensor::from_data(TensorData::new(depth, [n, 1, h, w]), device),
+    )
+}

@@ -5,8 +5,8 @@
 //! it there). Mesa's lavapipe ends a shader's loops after 65,535 iterations in all (gallivm's
 //! `LP_MAX_TGSI_LOOP_ITERATIONS`), so a row longer than that comes back short: a million ones
 //! sum to 262,132 (four per iteration), a strided column of 65,536 to 65,532
-//! (`tests/gpu_ops.rs`, Mesa 22.3.6). [`sum_all`] sums in rows of at
-//! most [`ROW`] elements, then sums the rows' sums the same way: right on every backend.
+//! (`tests/gpu_ops.rs`, Mesa 22.3.6). [`sum_all`] sums in rows of at most [`ROW`] elements,
+//! then sums the rows' sums the same way: right on every backend.
 
 use burn::prelude::*;
 

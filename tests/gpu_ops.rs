@@ -309,16 +309,7 @@ fn a_fused_chain_on_a_one_channel_convolution_output_matches_the_cpu() {
     let Some(gpu) = wgpu_device() else { return };
     let cpu = BackendKind::Flex.device().expect("flex");
     let chain = |d: &Device, raw: bool| {
-        let v: Vec<f32> = (0..2 * 96)
-            .map(|i| {
-                if i % 11 == 0 {
-                    0.0
-                } else {
-                    0.5 + (i % 50) as f32 / 20.0
-                }
-            })
-            .collect();
-        let gt = Tensor::<4>::from_data(TensorData::new(v, [2, 1, 8, 12]), d);
+        let gt = common::sdfcnn_targets(2, 8, 12, d).1;
         let pred = if raw {
             Tensor::<4>::from_data(TensorData::new(ramp(2 * 96, 2), [2, 8, 12, 1]), d)
                 .permute([0, 3, 1, 2])

@@ -135,6 +135,11 @@ fn cases() -> Vec<Case> {
     let labels = |n: usize, h: usize, w: usize, d: &Device| common::sdfcnn_targets(n, h, w, d).0;
     let depth_target =
         |n: usize, h: usize, w: usize, d: &Device| common::sdfcnn_targets(n, h, w, d).1;
+    let depth = |name: &str, kind: DepthLoss| {
+        case(name, &[[2, 1, 8, 12]], move |i, d| {
+            depth_loss(i[0].clone() * 4.0, depth_target(2, 8, 12, d), kind, 0.2)
+        })
+    };
     vec![
         // The layers, at the shapes of SDFCNN at 32x48 inside the network.
         conv("conv 3x3 s2 3->32", [3, 32], 3, 2, 1, [2, 3, 32, 48]),
@@ -170,22 +175,8 @@ fn cases() -> Vec<Case> {
         case("cross entropy with void", &[[2, 40, 8, 12]], move |i, d| {
             cross_entropy_void(i[0].clone(), labels(2, 8, 12, d))
         }),
-        case("depth loss l1", &[[2, 1, 8, 12]], move |i, d| {
-            depth_loss(
-                i[0].clone() * 4.0,
-                depth_target(2, 8, 12, d),
-                DepthLoss::L1,
-                0.2,
-            )
-        }),
-        case("depth loss berHu", &[[2, 1, 8, 12]], move |i, d| {
-            depth_loss(
-                i[0].clone() * 4.0,
-                depth_target(2, 8, 12, d),
-                DepthLoss::Berhu,
-                0.2,
-            )
-        }),
+        depth("depth loss l1", DepthLoss::L1),
+        depth("depth loss berHu", DepthLoss::Berhu),
         case("sub + mask_fill", &[[2, 1, 8, 12]], move |i, d| {
             let gt = depth_target(2, 8, 12, d);
             let invalid = gt.clone().lower_equal_elem(0.0);

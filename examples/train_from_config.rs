@@ -62,6 +62,7 @@ fn main() -> Result<()> {
         out: Some(out.clone()),
         resume: false,
         backend: Some(BackendKind::Ndarray),
+        devices: None,
         epochs: Some(epochs),
         quiet: true,
     };

@@ -53,6 +53,7 @@ impl DefaultRun {
             out: Some(opts.out.clone().unwrap_or_else(|| PathBuf::from(OUT))),
             resume: opts.resume,
             backend: Some(opts.backend.unwrap_or(BackendKind::Ndarray)),
+            devices: opts.devices.clone(),
             epochs: opts.epochs,
             quiet: opts.quiet,
         };

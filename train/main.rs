@@ -70,6 +70,10 @@ struct RunArgs {
     /// Backend (overrides the config's `backend`).
     #[arg(long, value_enum)]
     backend: Option<BackendKind>,
+    /// Data-parallel training on these GPUs of the backend, e.g. `wgpu:0,wgpu:1` (overrides
+    /// the config's `devices`; docs/training.md, *Several GPUs*).
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    devices: Option<Vec<sdf_slam::nn::DeviceSpec>>,
     /// Number of epochs (overrides the config's `epochs`), 1-100000.
     #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=100_000))]
     epochs: Option<usize>,
@@ -146,6 +150,7 @@ fn train(args: RunArgs) -> Result<()> {
         out: args.out,
         resume: args.resume,
         backend: args.backend,
+        devices: args.devices,
         epochs: args.epochs,
         quiet: args.quiet,
     };

@@ -6,7 +6,7 @@ use super::data::default_size;
 use super::loss::FpfdcnnLossConfig;
 use super::model::FpfdcnnConfig;
 use crate::error::{Error, Result};
-use crate::nn::BackendKind;
+use crate::nn::{BackendKind, DeviceSpec};
 use crate::training::OptimizerConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -31,6 +31,12 @@ pub struct FpfdcnnTrainConfig {
     /// Backend (`ndarray`, `flex`, `wgpu` or `cuda`); `--backend` overrides it.
     #[serde(default)]
     pub backend: BackendKind,
+    /// Data-parallel training on several GPUs of `backend`, e.g. `["wgpu:0", "wgpu:1"]`
+    /// ([`crate::nn::devices`]): a batch's parts (`accumulate` of them, at least one per
+    /// device) spread over them, the gradients summed on the first; `--devices` overrides
+    /// it. Empty: the backend's one device.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub devices: Vec<DeviceSpec>,
     /// Seed of the initial weights, data order and augmentation.
     #[serde(default = "default_seed")]
     pub seed: u64,

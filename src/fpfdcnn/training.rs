@@ -206,13 +206,20 @@ impl BatchLoss {
 /// Trains FPFDCNN as the config says (see the module docs).
 pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<()> {
     let mut cfg = FpfdcnnTrainConfig::parse(config_text, config_path)?;
-    opts.apply(&mut cfg.epochs, &mut cfg.backend, &mut cfg.out);
+    opts.apply(
+        &mut cfg.epochs,
+        &mut cfg.backend,
+        &mut cfg.devices,
+        &mut cfg.out,
+    );
     // A backend not compiled in, without a device, or not trusted to train fails before
     // anything is read or written.
     cfg.backend
         .check_training("FPFDCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
-    let device = cfg.backend.autodiff_device()?;
+    let devices = crate::nn::devices::training_devices(cfg.backend, &cfg.devices)
+        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
+    let device = devices[0].clone();
     for src in &mut cfg.data.sequences {
         src.camera = Some(src.resolved_camera());
     }
@@ -251,7 +258,6 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         cfg: &cfg,
         train: &train,
         val: &val,
-        device: &device,
     };
     let setup = Fit {
         run: &run,
@@ -260,6 +266,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         epochs: cfg.epochs,
         batch_size: cfg.batch_size,
         accumulate: cfg.accumulate,
+        devices: &devices,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
         validate_start: cfg.init.is_some() && !val.pairs.is_empty(),
@@ -274,7 +281,6 @@ struct FpLearner<'a> {
     cfg: &'a FpfdcnnTrainConfig,
     train: &'a FpDataset,
     val: &'a FpDataset,
-    device: &'a Device,
 }
 
 impl Learner for FpLearner<'_> {
@@ -302,7 +308,8 @@ impl Learner for FpLearner<'_> {
 
     fn train_step(&self, model: &Fpfdcnn, batch: FpHostBatch) -> Result<Step> {
         let cfg = self.cfg;
-        let batch = batch.into_device(self.device);
+        // The model's device: the run's, or one of its data-parallel devices.
+        let batch = batch.into_device(&crate::training::module_device(model));
         let l = batch_loss(model, batch, cfg)?;
         Ok(Step {
             terms: l.terms(),

@@ -8,7 +8,9 @@ use burn::prelude::Device;
 use serde::{Deserialize, Serialize};
 
 /// A Burn backend.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendKind {
     /// burn-ndarray (CPU).
@@ -145,9 +147,79 @@ pub(crate) fn is_cpu(device: &Device) -> bool {
     inner == ndarray || inner == Device::flex()
 }
 
+/// A wgpu device other than the default adapter (a [`super::devices`] entry), opened and
+/// probed once per process.
+pub(crate) fn wgpu_at(selector: super::devices::Selector) -> Result<Device, BackendError> {
+    gpu::wgpu_at(selector)
+}
+
+/// The `n`-th CUDA device, opened and probed once per process.
+pub(crate) fn cuda_at(n: usize) -> Result<Device, BackendError> {
+    gpu::cuda_at(n)
+}
+
 mod gpu {
     use super::{BackendError, BackendKind};
+    use crate::nn::devices::Selector;
     use burn::prelude::Device;
+
+    /// Devices opened by selector, each once per process (a wgpu runtime cannot be
+    /// initialised twice).
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    fn once_at(
+        backend: BackendKind,
+        key: Selector,
+        start: impl FnOnce() -> Result<Device, String>,
+    ) -> Result<Device, BackendError> {
+        use std::collections::HashMap;
+        use std::sync::{Mutex, OnceLock};
+        type Opened = Mutex<HashMap<(BackendKind, Selector), Result<Device, String>>>;
+        static OPENED: OnceLock<Opened> = OnceLock::new();
+        let mut opened = OPENED
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(|p| p.into_inner());
+        opened
+            .entry((backend, key))
+            .or_insert_with(|| start().and_then(|d| probe(&d).map(|()| d)))
+            .clone()
+            .map_err(|reason| BackendError::NoDevice { backend, reason })
+    }
+
+    #[cfg(feature = "wgpu")]
+    pub fn wgpu_at(selector: Selector) -> Result<Device, BackendError> {
+        use burn::tensor::DeviceKind;
+        let kind = match selector {
+            Selector::Default => return wgpu(),
+            Selector::Discrete(n) => DeviceKind::DiscreteGpu(n),
+            Selector::Integrated(n) => DeviceKind::IntegratedGpu(n),
+            Selector::Virtual(n) => DeviceKind::VirtualGpu(n),
+            Selector::Cpu => DeviceKind::Cpu,
+        };
+        once_at(BackendKind::Wgpu, selector, || {
+            Device::wgpu_options()
+                .device_kind(kind)
+                .init()
+                .map_err(|e| e.to_string())
+        })
+    }
+
+    #[cfg(not(feature = "wgpu"))]
+    pub fn wgpu_at(_: Selector) -> Result<Device, BackendError> {
+        Err(BackendError::NotCompiled(BackendKind::Wgpu))
+    }
+
+    #[cfg(feature = "cuda")]
+    pub fn cuda_at(n: usize) -> Result<Device, BackendError> {
+        once_at(BackendKind::Cuda, Selector::Discrete(n), || {
+            Ok(Device::cuda(n))
+        })
+    }
+
+    #[cfg(not(feature = "cuda"))]
+    pub fn cuda_at(_: usize) -> Result<Device, BackendError> {
+        Err(BackendError::NotCompiled(BackendKind::Cuda))
+    }
 
     /// Starts a GPU runtime once per process (wgpu's cannot be initialised twice) and keeps
     /// its device, or the driver's answer when there is none or it cannot compute.

@@ -8,6 +8,7 @@ pub(crate) mod batch_norm_kernel;
 pub mod conv;
 pub(crate) mod dense_conv_kernel;
 pub(crate) mod depthwise_kernel;
+pub mod devices;
 pub(crate) mod elu_kernel;
 pub mod init;
 pub(crate) mod nhwc;
@@ -37,3 +38,4 @@ pub use shuffle::{pixel_shuffle, pixel_unshuffle};
 pub use trace::ShapeTrace;
 
 pub use backend::BackendKind;
+pub use devices::DeviceSpec;

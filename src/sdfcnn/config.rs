@@ -12,6 +12,7 @@ use super::loss::SdfcnnLossConfig;
 use crate::camera::toml_error;
 use crate::dataset::augment::AugmentConfig;
 use crate::error::Result;
+use crate::nn::DeviceSpec;
 use crate::training::{BackendKind, OptimizerConfig};
 
 /// A complete SDFCNN training config (TOML).
@@ -22,9 +23,15 @@ pub struct SdfcnnTrainConfig {
     pub model: String,
     /// Run folder.
     pub out: PathBuf,
-    /// Backend (`ndarray` or `flex`); `--backend` overrides it.
+    /// Backend (`ndarray`, `flex`, `wgpu` or `cuda`); `--backend` overrides it.
     #[serde(default)]
     pub backend: BackendKind,
+    /// Data-parallel training on several GPUs of `backend`, e.g. `["wgpu:0", "wgpu:1"]`
+    /// ([`crate::nn::devices`]): a batch's parts (`accumulate` of them, at least one per
+    /// device) spread over them, the gradients summed on the first; `--devices` overrides
+    /// it. Empty: the backend's one device.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub devices: Vec<DeviceSpec>,
     /// Seed of the initial weights, data order and augmentation.
     #[serde(default = "default_seed")]
     pub seed: u64,

@@ -58,13 +58,30 @@ use crate::training::{RunDir, RunOptions, batch_rng};
 /// overrides `opts`.
 pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<()> {
     let mut cfg = SdfcnnTrainConfig::parse(config_text, config_path)?.resolved(config_path);
-    opts.apply(&mut cfg.epochs, &mut cfg.backend, &mut cfg.out);
+    opts.apply(
+        &mut cfg.epochs,
+        &mut cfg.backend,
+        &mut cfg.devices,
+        &mut cfg.out,
+    );
     // A backend not compiled in, without a device, or not trusted to train fails before any
     // data is read.
     cfg.backend
         .check_training("SDFCNN")
         .map_err(|e| Error::invalid(config_path, e.to_string()))?;
-    let device = cfg.backend.autodiff_device()?;
+    let devices = crate::nn::devices::training_devices(cfg.backend, &cfg.devices)
+        .map_err(|e| Error::invalid(config_path, e.to_string()))?;
+    train_on(cfg, config_path, opts, &devices)
+}
+
+/// [`run`] once the config is read and its devices are open (`devices[0]` holds the model).
+fn train_on(
+    cfg: SdfcnnTrainConfig,
+    config_path: &Path,
+    opts: &RunOptions,
+    devices: &[Device],
+) -> Result<()> {
+    let device = devices[0].clone();
     let focal = cfg.network.depth_focal;
     let train = SegDepthData::open(&cfg.data.train)?.with_canonical(focal);
     let video = VideoData::open(&cfg.data.video)?.with_canonical(focal);
@@ -140,7 +157,6 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         train: &train,
         video: &video,
         val: val.as_ref(),
-        device: &device,
     };
     let setup = Fit {
         run: &run,
@@ -149,6 +165,7 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         epochs: cfg.epochs,
         batch_size: cfg.batch_size,
         accumulate: cfg.accumulate,
+        devices,
         optimizer: &cfg.optimizer,
         resume: opts.resume,
         // Fine-tuning a trained SDFCNN (not an ImageNet start): is it better than before?
@@ -166,7 +183,6 @@ struct SdfLearner<'a> {
     train: &'a SegDepthData,
     video: &'a VideoData,
     val: Option<&'a SegDepthData>,
-    device: &'a Device,
 }
 
 /// A batch on the host: samples with targets (eq. 21) and video samples (photometric).
@@ -212,6 +228,8 @@ impl Learner for SdfLearner<'_> {
     /// (averaged over all samples) are lower than the parts' own means.
     fn train_step(&self, model: &Sdfcnn, batch: SdfBatch) -> Result<Step> {
         let cfg = self.cfg;
+        // The model's device: the run's, or one of its data-parallel devices.
+        let device = model_device(model);
         let (k, m) = (batch.supervised.len(), batch.video.len());
         let n = (k + m) as f64;
         let mut terms = Vec::new();
@@ -224,7 +242,7 @@ impl Learner for SdfLearner<'_> {
             });
         };
         if k > 0 {
-            let b = SdfcnnBatch::from_samples(&batch.supervised, self.device)?;
+            let b = SdfcnnBatch::from_samples(&batch.supervised, &device)?;
             let out = forward(model, b.images, cfg.loss.resolution)?;
             let loss = cfg.loss.forward(out, b.labels, b.depth);
             terms.extend(loss_terms(&loss));
@@ -233,7 +251,7 @@ impl Learner for SdfLearner<'_> {
             terms.extend([("seg_loss", 0.0), ("depth_loss", 0.0)]);
         }
         if m > 0 {
-            let (photo, smooth) = video_loss(model, &batch.video, self.device)?;
+            let (photo, smooth) = video_loss(model, &batch.video, &device)?;
             terms.extend([
                 ("photo_loss", scalar(&photo)),
                 ("smooth_loss", scalar(&smooth)),
@@ -408,11 +426,7 @@ pub(super) fn scalar(t: &Tensor<1>) -> f64 {
 
 /// The device a model's parameters live on.
 pub(super) fn model_device(model: &Sdfcnn) -> Device {
-    model
-        .devices()
-        .into_iter()
-        .next()
-        .unwrap_or_else(Device::flex)
+    crate::training::module_device(model)
 }
 
 /// The overall losses and metrics, then each named validation source's δ1, REL and MPA.
@@ -455,6 +469,7 @@ fn fmt_size([h, w]: [usize; 2]) -> String {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::nn::DeviceSpec;
     use crate::sdfcnn::SdfcnnConfig;
     use crate::training::RunDir;
     use burn::nn::conv::Conv2d;
@@ -584,6 +599,107 @@ crp_stages = 2
             msg.contains("model.bpk") && msg.contains("config.toml"),
             "{msg}"
         );
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn two_devices_train_as_one_with_twice_the_accumulation_and_their_checkpoints_resume_on_one() {
+        // No second GPU here: flex (the model's device) and ndarray are two devices to Burn,
+        // so each share of a batch trains on its own fork and its gradients cross devices.
+        let root = tmp("devices");
+        let cfg_path = root.join("tiny.toml");
+        let (one, two, mixed) = (root.join("one"), root.join("two"), root.join("mixed"));
+        // 12 samples in batches of 4, parts of 2: a batch norm over one sample at these sizes sees two
+        // values a channel in the last layers, and its gradients are float noise.
+        let accumulate = |out: &Path, parts: usize| {
+            let text = tiny_config(out, "")
+                .replace("batch_size = 2", "batch_size = 4")
+                .replace("lr = 0.01\n", "lr = 0.001\n")
+                .replace(
+                    r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#,
+                    r#"train = [{ path = "datasets/fixtures/nyuv2", repeat = 4 }]"#,
+                );
+            format!("accumulate = {parts}\nbackend = \"flex\"\n{text}")
+        };
+        run(&cfg_path, &accumulate(&one, 2), &quiet()).expect("one device");
+        #[allow(deprecated)] // ndarray is deprecated upstream but the project's default.
+        let devices = [Device::flex().autodiff(), Device::ndarray().autodiff()];
+        let parse = |text: &str| {
+            SdfcnnTrainConfig::parse(text, &cfg_path)
+                .expect("parses")
+                .resolved(&cfg_path)
+        };
+        train_on(parse(&accumulate(&two, 1)), &cfg_path, &quiet(), &devices).expect("two");
+        // Epoch 1 on two devices, epoch 2 resumed from its checkpoint on one (two parts a
+        // batch either way).
+        let first = RunOptions {
+            epochs: Some(1),
+            ..quiet()
+        };
+        let mut cfg = parse(&accumulate(&mixed, 2));
+        cfg.epochs = 1;
+        train_on(cfg, &cfg_path, &first, &devices).expect("mixed, epoch 1");
+        let resumed = RunOptions {
+            resume: true,
+            ..quiet()
+        };
+        run(&cfg_path, &accumulate(&mixed, 2), &resumed).expect("mixed, resumed on one");
+        // The yardstick: the same run on ndarray alone, against flex alone. Each step's
+        // float noise grows through the next ones (batch norms over two samples).
+        let control = root.join("control");
+        let on_ndarray =
+            accumulate(&control, 2).replace("backend = \"flex\"", "backend = \"ndarray\"");
+        run(&cfg_path, &on_ndarray, &quiet()).expect("control");
+        let train_losses =
+            |run: &Path| -> Vec<f64> { losses(run).into_iter().step_by(3).collect() };
+        let (l1, l2, lm) = (train_losses(&one), train_losses(&two), train_losses(&mixed));
+        let lc = train_losses(&control);
+        eprintln!(
+            "train losses: one device {l1:?}, two {l2:?}, two then one {lm:?}, ndarray {lc:?}"
+        );
+        assert_eq!(l1.len(), 2);
+        for l in [&l2, &lm] {
+            for ((x, y), c) in l1.iter().zip(l).zip(&lc) {
+                assert!(
+                    (x - y).abs() <= (4.0 * (x - c).abs()).max(1e-4),
+                    "{l1:?} vs {l:?}"
+                );
+            }
+        }
+        std::fs::remove_dir_all(&root).ok();
+    }
+
+    #[test]
+    fn device_lists_that_cannot_train_are_refused_before_any_data_is_read() {
+        let root = tmp("device_lists");
+        let cfg_path = root.join("tiny.toml");
+        // Data that does not exist: an error about it would mean the list was not checked first.
+        let text = tiny_config(&root.join("out"), "").replace("datasets/fixtures/nyuv2", "missing");
+        let spec = |s: &str| s.parse::<DeviceSpec>().expect("valid entry");
+        for (backend, list, want) in [
+            ("flex", vec!["flex"], "backend `flex` has one device"),
+            (
+                "ndarray",
+                vec!["wgpu:0", "wgpu:1"],
+                "set `backend = \"wgpu\"`",
+            ),
+            ("wgpu", vec!["wgpu:0", "cuda:0"], "cannot mix backends"),
+        ] {
+            let text = format!("backend = \"{backend}\"\n{text}");
+            let opts = RunOptions {
+                devices: Some(list.iter().map(|s| spec(s)).collect()),
+                ..quiet()
+            };
+            let e = run(&cfg_path, &text, &opts)
+                .expect_err("refused")
+                .to_string();
+            // Without the wgpu feature its own refusal comes first, also before the data.
+            assert!(
+                e.contains(want) || e.contains("not compiled into this binary"),
+                "{e}"
+            );
+            assert!(!root.join("out").exists(), "{e}");
+        }
         std::fs::remove_dir_all(&root).ok();
     }
 

@@ -178,8 +178,8 @@ impl RunDir {
                     &cfg_path,
                     format!(
                         "--resume with a config that differs from the one this run was started \
-                         with: {diff} (only `epochs`, `keep_checkpoints`, `out`, `backend` and \
-                         the learning rates of epochs not trained yet may change): resume with \
+                         with: {diff} (only `epochs`, `keep_checkpoints`, `out`, `backend`, \
+                         `devices` and the learning rates of epochs not trained yet may change): resume with \
                          the run's own config ({}), or start the changed run in another --out",
                         cfg_path.display()
                     ),
@@ -492,7 +492,7 @@ pub fn clear_run(root: &Path) -> Result<Option<String>> {
 /// where the run folder is (it may have moved, or be named by another spelling), and the
 /// backend (`--backend`: the same computation on another device, equal up to float
 /// rounding); none changes what the epochs already run computed.
-const FREE_SETTINGS: [&str; 4] = ["epochs", "keep_checkpoints", "out", "backend"];
+const FREE_SETTINGS: [&str; 5] = ["epochs", "keep_checkpoints", "out", "backend", "devices"];
 
 /// The differences in meaning between two training configs, as `key: saved -> given` joined
 /// by "; " (at most six named), or `None` when they agree: keys compared as parsed TOML

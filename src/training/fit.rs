@@ -124,6 +124,12 @@ pub struct Fit<'a> {
     /// Each batch in this many parts, trained one after the other with their gradients
     /// summed before the step: peak memory of a batch this many times smaller.
     pub accumulate: usize,
+    /// Data-parallel training: the parts of a batch (`accumulate` of them, or one per device
+    /// where there are more devices) go to these devices in rounds; each trains its part on a
+    /// fork of the model and sends its gradients to the first device (the model's, which
+    /// holds the optimizer) to be summed before the step, as burn-train's multi-device
+    /// strategy does. Empty or one device: the model's.
+    pub devices: &'a [Device],
     /// Optimizer and learning-rate schedule.
     pub optimizer: &'a OptimizerConfig,
     /// Continue from the run's last checkpoint (the model given is then only its shape).
@@ -290,17 +296,21 @@ fn train_epoch<L: Learner + Sync>(
         order.truncate(learner.samples_per_epoch());
     }
     let batches: Vec<&[usize]> = order.chunks(fit.batch_size.max(1)).collect();
-    // Each batch in `accumulate` parts of at most `part` samples (the last batch may have
-    // fewer parts); part `m` of batch `bi` draws from generator `bi * accumulate + m`.
-    let accumulate = fit.accumulate.clamp(1, fit.batch_size.max(1));
-    let part = fit.batch_size.max(1).div_ceil(accumulate);
+    // Each batch in `split` shares of at most `part` samples (the last batch may have
+    // fewer): `accumulate` of them, or one per device where there are more devices; the
+    // devices take them in rounds. Share `m` of batch `bi` draws from generator
+    // `bi * split + m`, so a run computes the same on any number of devices up to
+    // `accumulate`, and `n` devices with less the same as one with `accumulate = n`.
+    let devices = fit.devices.len().max(1);
+    let split = fit.accumulate.max(devices).clamp(1, fit.batch_size.max(1));
+    let part = fit.batch_size.max(1).div_ceil(split);
     let parts: Vec<(usize, usize, &[usize])> = batches
         .iter()
         .enumerate()
         .flat_map(|(bi, ids)| {
             ids.chunks(part)
                 .enumerate()
-                .map(move |(m, p)| (bi, bi * accumulate + m, p))
+                .map(move |(m, p)| (bi, bi * split + m, p))
         })
         .collect();
     let bar = progress_bar(batches.len(), epoch, fit.epochs, fit.quiet);
@@ -329,30 +339,29 @@ fn train_epoch<L: Learner + Sync>(
             let mut accumulator = GradientsAccumulator::<L::Model>::new();
             let mut part_terms = Vec::new();
             while next < parts.len() && parts[next].0 == bi {
-                let share = parts[next].2.len() as f32 / ids.len() as f32;
-                next += 1;
-                let waiting = Instant::now();
-                let (batch, load) = rx.recv().map_err(|_| {
-                    Error::msg(format!(
-                        "epoch {} batch {bi}: the data loader thread stopped",
-                        epoch + 1
-                    ))
-                })?;
-                loading.wait += waiting.elapsed();
-                loading.load += load;
-                let step = learner.train_step(&model, batch?)?;
-                let value = step.loss.clone().into_scalar::<f32>() as f64;
-                check_finite(value, epoch, bi, fit.run)?;
-                let mut terms = vec![("loss", value)];
-                terms.extend(step.terms);
-                part_terms.push((terms, step.samples));
-                let loss = if share < 1.0 {
-                    step.loss.mul_scalar(share)
-                } else {
-                    step.loss
-                };
-                accumulator
-                    .accumulate(&model, GradientsParams::from_grads(loss.backward(), &model));
+                // One round: a share for each device (fewer at the batch's end).
+                let mut round = Vec::with_capacity(devices);
+                while round.len() < devices && next < parts.len() && parts[next].0 == bi {
+                    let share = parts[next].2.len() as f32 / ids.len() as f32;
+                    next += 1;
+                    let waiting = Instant::now();
+                    let (batch, load) = rx.recv().map_err(|_| {
+                        Error::msg(format!(
+                            "epoch {} batch {bi}: the data loader thread stopped",
+                            epoch + 1
+                        ))
+                    })?;
+                    loading.wait += waiting.elapsed();
+                    loading.load += load;
+                    round.push((batch?, share));
+                }
+                for (value, terms, samples, grads) in
+                    train_round(learner, &model, fit.devices, round)?
+                {
+                    check_finite(value, epoch, bi, fit.run)?;
+                    part_terms.push((terms, samples));
+                    accumulator.accumulate(&model, grads);
+                }
             }
             let grads = accumulator.grads();
             let bad = non_finite_grads(&model, &grads);
@@ -394,6 +403,85 @@ fn train_epoch<L: Learner + Sync>(
     })?;
     bar.finish_and_clear();
     Ok((model, meter, loading))
+}
+
+/// A share's loss, its terms for the epoch means, its sample weight and its gradients (on
+/// the model's device, scaled by the share of the batch).
+type ShareOutput = (f64, Vec<(&'static str, f64)>, usize, GradientsParams);
+
+/// The loss and gradients of one share of a batch on `model` as it is.
+fn train_share<L: Learner>(
+    learner: &L,
+    model: &L::Model,
+    batch: L::Batch,
+    share: f32,
+) -> Result<ShareOutput> {
+    let step = learner.train_step(model, batch)?;
+    let value = step.loss.clone().into_scalar::<f32>() as f64;
+    let mut terms = vec![("loss", value)];
+    terms.extend(step.terms);
+    let loss = if share < 1.0 {
+        step.loss.mul_scalar(share)
+    } else {
+        step.loss
+    };
+    let grads = GradientsParams::from_grads(loss.backward(), model);
+    Ok((value, terms, step.samples, grads))
+}
+
+/// One share per device trained at once (share `j` on device `j`, each on a fork of `model`
+/// there), their gradients moved to `model`'s device: burn-train's multi-device step
+/// (`MultiDevicesTrainStep`, `GradientsParams::to_device`), inside this loop so that the
+/// schedule, checkpoints and non-finite policy stay the same. One share on one device: the
+/// model itself.
+fn train_round<L: Learner + Sync>(
+    learner: &L,
+    model: &L::Model,
+    devices: &[Device],
+    round: Vec<(L::Batch, f32)>,
+) -> Result<Vec<ShareOutput>> {
+    if devices.len() <= 1 {
+        return round
+            .into_iter()
+            .map(|(batch, share)| train_share(learner, model, batch, share))
+            .collect();
+    }
+    let main = &devices[0];
+    let outputs = std::thread::scope(|scope| {
+        let handles: Vec<_> = round
+            .into_iter()
+            .zip(devices)
+            .map(|((batch, share), device)| {
+                let fork = model.clone().fork(device);
+                scope.spawn(move || {
+                    let (value, terms, samples, grads) = train_share(learner, &fork, batch, share)?;
+                    Ok((value, terms, samples, grads.to_device(main, &fork)))
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .zip(devices)
+            .map(|(h, device)| {
+                h.join().unwrap_or_else(|panic| {
+                    let why = panic
+                        .downcast_ref::<String>()
+                        .cloned()
+                        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                        .unwrap_or_default();
+                    Err(Error::msg(format!(
+                        "the training step on device {device:?} failed: {why}"
+                    )))
+                })
+            })
+            .collect()
+    });
+    // Batch norms' running statistics are shared by the forks (Burn's `RunningState`): each
+    // thread left its update, and the last fork moved the value to its device. Fold the
+    // updates (their mean, as in burn-train's multi-device runs) and bring the value back.
+    drop(model.valid());
+    drop(model.clone().to_device(main));
+    outputs
 }
 
 /// `--resume`: the model, optimizer state and training state of the run's last checkpoint;
@@ -582,6 +670,8 @@ mod tests {
         len: usize,
         fail_at: Option<usize>,
         seen: std::sync::Mutex<Vec<(Vec<usize>, u64)>>,
+        /// The devices the steps ran on.
+        on: std::sync::Mutex<Vec<Device>>,
     }
 
     impl Learner for Toy {
@@ -611,6 +701,7 @@ mod tests {
             let loss = model.forward(x).powi_scalar(2).mean();
             let samples = ids.len();
             self.seen.lock().unwrap().push(batch);
+            self.on.lock().unwrap().push(device);
             Ok(Step {
                 loss,
                 terms: Vec::new(),
@@ -638,7 +729,7 @@ mod tests {
         fail_at: Option<usize>,
         accumulate: usize,
     ) -> (Toy, Result<burn::nn::Linear>) {
-        toy_fit_history(name, fail_at, accumulate, false).0
+        toy_fit_history(name, fail_at, accumulate, false, &[]).0
     }
 
     /// [`toy_fit`], with the run's `metrics.csv` and the starting weights validated or not.
@@ -647,6 +738,7 @@ mod tests {
         fail_at: Option<usize>,
         accumulate: usize,
         validate_start: bool,
+        devices: &[Device],
     ) -> ((Toy, Result<burn::nn::Linear>), String) {
         let root = std::env::temp_dir().join(format!("sdf_fit_{name}_{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
@@ -660,6 +752,7 @@ mod tests {
             epochs: 2,
             batch_size: 3,
             accumulate,
+            devices,
             optimizer: &optimizer,
             resume: false,
             validate_start,
@@ -672,6 +765,7 @@ mod tests {
             len: 10,
             fail_at,
             seen: Default::default(),
+            on: Default::default(),
         };
         let out = fit(&toy, &setup, model);
         let csv = std::fs::read_to_string(root.join("metrics.csv")).unwrap_or_default();
@@ -682,9 +776,9 @@ mod tests {
     #[test]
     fn the_starting_weights_are_validated_as_epoch_0_when_asked() {
         let epoch_0 = |csv: &str| csv.lines().nth(1).map(|l| l.split(',').next() == Some("0"));
-        let (_, csv) = toy_fit_history("no_start", None, 1, false);
+        let (_, csv) = toy_fit_history("no_start", None, 1, false, &[]);
         assert_eq!(epoch_0(&csv), Some(false), "{csv}");
-        let ((_, out), csv) = toy_fit_history("start", None, 1, true);
+        let ((_, out), csv) = toy_fit_history("start", None, 1, true, &[]);
         out.unwrap();
         let val_loss = |line: &str| -> f64 { line.rsplit(',').next().unwrap().parse().unwrap() };
         let lines: Vec<&str> = csv.lines().collect();
@@ -732,6 +826,43 @@ mod tests {
         let seen = toy.seen.lock().unwrap();
         assert!(seen.iter().all(|(ids, _)| ids.len() == 1));
         assert_eq!(seen.len(), 20);
+    }
+
+    fn toy_weights(m: &burn::nn::Linear) -> Vec<f32> {
+        let w = m.weight.val().into_data().try_to_vec::<f32>().unwrap();
+        let b = m.bias.as_ref().unwrap().val().into_data();
+        [w, b.try_to_vec::<f32>().unwrap()].concat()
+    }
+
+    #[test]
+    fn two_devices_make_the_step_of_one_with_twice_the_accumulation() {
+        // Two distinct devices with no second GPU: flex (the model's) and ndarray. Each
+        // trains its share on a fork of the model; the gradients come back to flex.
+        #[allow(deprecated)] // ndarray is deprecated upstream but the project's default.
+        let devices = [Device::flex().autodiff(), Device::ndarray().autodiff()];
+        let ((two, parallel), _) = toy_fit_history("two_devices", None, 1, false, &devices);
+        let (one, serial) = toy_fit("one_device", None, 2);
+        let (parallel, serial) = (
+            toy_weights(&parallel.unwrap()),
+            toy_weights(&serial.unwrap()),
+        );
+        for (a, b) in parallel.iter().zip(&serial) {
+            assert!(
+                (a - b).abs() <= 1e-5 * a.abs().max(1.0),
+                "{parallel:?} vs {serial:?}"
+            );
+        }
+        // The same shares with the same draws, half of them on each device.
+        let sorted = |t: &Toy| {
+            let mut v = t.seen.lock().unwrap().clone();
+            v.sort();
+            v
+        };
+        assert_eq!(sorted(&two), sorted(&one));
+        // Batches of 3, 3, 3 and 1 an epoch: shares of 2 + 1 (one on each device) and 1.
+        let on = two.on.lock().unwrap();
+        let count = |d: &Device| on.iter().filter(|o| *o == d).count();
+        assert_eq!([count(&devices[0]), count(&devices[1])], [8, 6]);
     }
 
     #[test]

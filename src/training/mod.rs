@@ -47,10 +47,22 @@ pub struct RunOptions {
     pub resume: bool,
     /// Backend (default: the config's `backend`).
     pub backend: Option<BackendKind>,
+    /// Data-parallel devices (default: the config's `devices`).
+    pub devices: Option<Vec<crate::nn::DeviceSpec>>,
     /// Number of epochs (default: the config's `epochs`).
     pub epochs: Option<usize>,
     /// Hide the progress bar (logs still print one line per epoch).
     pub quiet: bool,
+}
+
+/// The device a module's parameters live on (the first parameter's; flex for a module
+/// without any).
+pub(crate) fn module_device<M: burn::module::Module>(module: &M) -> burn::prelude::Device {
+    module
+        .devices()
+        .into_iter()
+        .next()
+        .unwrap_or_else(burn::prelude::Device::flex)
 }
 
 impl RunOptions {
@@ -59,6 +71,7 @@ impl RunOptions {
         &self,
         epochs: &mut usize,
         backend: &mut BackendKind,
+        devices: &mut Vec<crate::nn::DeviceSpec>,
         out: &mut std::path::PathBuf,
     ) {
         if let Some(e) = self.epochs {
@@ -66,6 +79,9 @@ impl RunOptions {
         }
         if let Some(b) = self.backend {
             *backend = b;
+        }
+        if let Some(d) = &self.devices {
+            *devices = d.clone();
         }
         if let Some(o) = &self.out {
             *out = o.clone();

@@ -243,6 +243,7 @@ pub fn run(path: &Path, text: &str, opts: &RunOptions) -> Result<()> {
             out: Some(run.dir.clone()),
             resume: done > 0,
             backend: opts.backend,
+            devices: opts.devices.clone(),
             epochs: Some(run.epochs),
             quiet: opts.quiet,
         };

@@ -179,8 +179,9 @@ impl RunDir {
                     format!(
                         "--resume with a config that differs from the one this run was started \
                          with: {diff} (only `epochs`, `keep_checkpoints`, `out`, `backend`, \
-                         `devices` and the learning rates of epochs not trained yet may change): resume with \
-                         the run's own config ({}), or start the changed run in another --out",
+                         `devices` and the learning rates of epochs not trained yet may \
+                         change): resume with the run's own config ({}), or start the changed \
+                         run in another --out",
                         cfg_path.display()
                     ),
                 ));
@@ -491,7 +492,8 @@ pub fn clear_run(root: &Path) -> Result<Option<String>> {
 /// Settings a resumed run may change: the number of epochs, how many checkpoints are kept,
 /// where the run folder is (it may have moved, or be named by another spelling), and the
 /// backend (`--backend`: the same computation on another device, equal up to float
-/// rounding); none changes what the epochs already run computed.
+/// rounding) and the data-parallel devices (`--devices`: a checkpoint continues on any
+/// number of them); none changes what the epochs already run computed.
 const FREE_SETTINGS: [&str; 5] = ["epochs", "keep_checkpoints", "out", "backend", "devices"];
 
 /// The differences in meaning between two training configs, as `key: saved -> given` joined

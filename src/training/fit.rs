@@ -13,7 +13,9 @@
 //! - data loading overlapped with the steps: a loader thread reads and augments the next
 //!   `PREFETCH` batches ([`Learner::load`]) while the current one trains, as PyTorch's
 //!   `DataLoader` workers do; the epoch line says how long loading took and how long the
-//!   steps waited for it.
+//!   steps waited for it;
+//! - data-parallel training over several devices ([`Fit::devices`]), with burn-train's
+//!   gradient exchange (`GradientsParams::to_device`, `GradientsAccumulator`).
 
 use super::{
     EpochRecord, OptimizerConfig, RunDir, TrainState, batch_rng, check_finite, check_finite_epoch,

@@ -88,3 +88,11 @@ impl Error {
         Error::Msg(msg.into())
     }
 }
+
+/// The message a panic carried (`panic!` with a string or a format), if any.
+pub(crate) fn panic_message(payload: &(dyn std::any::Any + Send)) -> Option<String> {
+    payload
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| payload.downcast_ref::<&str>().map(|s| s.to_string()))
+}

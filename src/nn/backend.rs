@@ -257,10 +257,7 @@ mod gpu {
             Ok(Ok(v)) if v == (1 << 20) as f32 => Ok(()),
             Ok(Ok(v)) => Err(format!("a test sum gave {v} instead of {}", 1 << 20)),
             Ok(Err(e)) => Err(one_line(format!("{e:?}"))),
-            Err(p) => Err(p
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+            Err(p) => Err(crate::error::panic_message(p.as_ref())
                 .map_or_else(|| "the runtime failed to start".into(), one_line)),
         }
     }

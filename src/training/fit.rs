@@ -466,11 +466,7 @@ fn train_round<L: Learner + Sync>(
             .zip(devices)
             .map(|(h, device)| {
                 h.join().unwrap_or_else(|panic| {
-                    let why = panic
-                        .downcast_ref::<String>()
-                        .cloned()
-                        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                        .unwrap_or_default();
+                    let why = crate::error::panic_message(panic.as_ref()).unwrap_or_default();
                     Err(Error::msg(format!(
                         "the training step on device {device:?} failed: {why}"
                     )))

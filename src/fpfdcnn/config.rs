@@ -212,6 +212,9 @@ impl FpfdcnnTrainConfig {
         if cfg.batch_size == 0 || cfg.epochs == 0 {
             return bad("batch_size and epochs must be at least 1".into());
         }
+        if let Err(e) = crate::nn::devices::check_entries(&cfg.devices) {
+            return bad(format!("devices: {e}"));
+        }
         if !(1..=cfg.batch_size).contains(&cfg.accumulate) {
             return bad(format!(
                 "accumulate must be in 1..=batch_size ({}), got {}",

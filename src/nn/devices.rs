@@ -144,18 +144,33 @@ impl From<DeviceListError> for crate::error::Error {
     }
 }
 
-/// Checks a device list against the run's `backend` without opening a device: one backend,
-/// the run's, a GPU backend, no entry twice.
-pub fn check_device_list(
-    backend: BackendKind,
-    specs: &[DeviceSpec],
-) -> Result<(), DeviceListError> {
+/// Checks what a device list shows by itself (a config is checked with it when read): one
+/// backend, no entry twice.
+pub fn check_entries(specs: &[DeviceSpec]) -> Result<(), DeviceListError> {
     let Some(first) = specs.first() else {
         return Ok(());
     };
     if let Some(other) = specs.iter().find(|s| s.backend != first.backend) {
         return Err(DeviceListError::Mixed(*first, *other));
     }
+    for (i, s) in specs.iter().enumerate() {
+        if specs[..i].contains(s) {
+            return Err(DeviceListError::Repeated(*s));
+        }
+    }
+    Ok(())
+}
+
+/// Checks a device list against the run's `backend` (after the command line's overrides)
+/// without opening a device: [`check_entries`], then the run's backend, a GPU backend.
+pub fn check_device_list(
+    backend: BackendKind,
+    specs: &[DeviceSpec],
+) -> Result<(), DeviceListError> {
+    check_entries(specs)?;
+    let Some(first) = specs.first() else {
+        return Ok(());
+    };
     if first.backend != backend {
         return Err(DeviceListError::OtherBackend {
             backend,
@@ -164,11 +179,6 @@ pub fn check_device_list(
     }
     if !backend.is_gpu() {
         return Err(DeviceListError::OneDevice(backend));
-    }
-    for (i, s) in specs.iter().enumerate() {
-        if specs[..i].contains(s) {
-            return Err(DeviceListError::Repeated(*s));
-        }
     }
     Ok(())
 }

@@ -215,6 +215,7 @@ impl SdfcnnTrainConfig {
         if self.batch_size == 0 {
             return Err("batch_size must be at least 1".into());
         }
+        crate::nn::devices::check_entries(&self.devices).map_err(|e| format!("devices: {e}"))?;
         if !(self.encoder_lr > 0.0 && self.encoder_lr <= 10.0) {
             return Err(format!(
                 "encoder_lr must be a factor in (0, 10], got {}",

@@ -700,6 +700,15 @@ crp_stages = 2
             );
             assert!(!root.join("out").exists(), "{e}");
         }
+        // What the list shows by itself is refused when the config is read (`--dry-run`).
+        let mixed = format!("devices = [\"wgpu:0\", \"cuda:0\"]\n{text}");
+        let e = SdfcnnTrainConfig::parse(&mixed, &cfg_path)
+            .expect_err("mixed")
+            .to_string();
+        assert!(
+            e.contains("devices: ") && e.contains("cannot mix backends"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&root).ok();
     }
 

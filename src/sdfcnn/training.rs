@@ -609,16 +609,21 @@ crp_stages = 2
         let root = tmp("devices");
         let cfg_path = root.join("tiny.toml");
         let (one, two, mixed) = (root.join("one"), root.join("two"), root.join("mixed"));
-        // 12 samples in batches of 4, parts of 2: a batch norm over one sample at these sizes sees two
-        // values a channel in the last layers, and its gradients are float noise.
+        // 12 samples in batches of 4, parts of 2: a batch norm over one sample at these sizes
+        // sees two values a channel in the last layers, and its gradients are float noise.
         let accumulate = |out: &Path, parts: usize| {
-            let text = tiny_config(out, "")
-                .replace("batch_size = 2", "batch_size = 4")
-                .replace("lr = 0.01\n", "lr = 0.001\n")
-                .replace(
+            let mut text = tiny_config(out, "");
+            for (from, to) in [
+                ("batch_size = 2", "batch_size = 4"),
+                ("lr = 0.01\n", "lr = 0.001\n"),
+                (
                     r#"train = [{ path = "datasets/fixtures/nyuv2" }]"#,
                     r#"train = [{ path = "datasets/fixtures/nyuv2", repeat = 4 }]"#,
-                );
+                ),
+            ] {
+                assert!(text.contains(from), "the tiny config no longer sets {from}");
+                text = text.replace(from, to);
+            }
             format!("accumulate = {parts}\nbackend = \"flex\"\n{text}")
         };
         run(&cfg_path, &accumulate(&one, 2), &quiet()).expect("one device");

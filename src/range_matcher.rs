@@ -16,6 +16,7 @@
 //! position predicted by the motion model instead.
 
 use crate::error::{Error, Result};
+use crate::nn::nhwc::simd_fn;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -124,11 +125,15 @@ impl Grid {
     }
 }
 
-/// Squared Euclidean distance, with eight partial sums so that it vectorises.
-#[inline]
+/// Partial sums of [`squared_l2`]: four AVX2 registers (two AVX-512 ones), so that the sums
+/// do not wait on one another.
+const L2_LANES: usize = 32;
+
+/// Squared Euclidean distance, in [`L2_LANES`] partial sums so that it vectorises.
+#[inline(always)]
 fn squared_l2(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let mut acc = [0f32; L2_LANES];
+    let (ca, cb) = (a.chunks_exact(L2_LANES), b.chunks_exact(L2_LANES));
     let tail: f32 = ca
         .remainder()
         .iter()
@@ -136,12 +141,22 @@ fn squared_l2(a: &[f32], b: &[f32]) -> f32 {
         .map(|(x, y)| (x - y) * (x - y))
         .sum();
     for (xa, xb) in ca.zip(cb) {
-        for k in 0..8 {
+        for k in 0..L2_LANES {
             let d = xa[k] - xb[k];
             acc[k] += d * d;
         }
     }
     acc.iter().sum::<f32>() + tail
+}
+
+simd_fn! {
+    /// `out[c] = squared_l2(query, row candidates[c] of desc)`, compiled for the CPU's widest
+    /// vectors (the same sums in the same order on every CPU).
+    fn squared_l2_rows(query: &[f32], desc: &[f32], dim: usize, candidates: &[usize], out: &mut [f32]) {
+        for (o, &k) in out.iter_mut().zip(candidates) {
+            *o = squared_l2(query, &desc[k * dim..(k + 1) * dim]);
+        }
+    }
 }
 
 /// Nearest and second-nearest squared distances of `query` among the window's
@@ -158,20 +173,18 @@ fn nearest(
     dim: usize,
     exclusion: f32,
 ) -> Option<(usize, f32, f32)> {
+    let inside: Vec<usize> = grid
+        .candidates(centre, half)
+        .filter(|&k| {
+            let p = points[k];
+            (p[0] - centre[0]).abs() <= half && (p[1] - centre[1]).abs() <= half
+        })
+        .collect();
+    let mut dist = vec![0f32; inside.len()];
+    squared_l2_rows(query, desc, dim, &inside, &mut dist);
     let mut best: Option<(usize, f32)> = None;
     let mut second = f32::INFINITY;
-    // With an exclusion radius the second-nearest depends on where the nearest is,
-    // known only at the end: keep the candidates.
-    let mut seen: Vec<(usize, f32)> = Vec::new();
-    for k in grid.candidates(centre, half) {
-        let p = points[k];
-        if (p[0] - centre[0]).abs() > half || (p[1] - centre[1]).abs() > half {
-            continue;
-        }
-        let d = squared_l2(query, &desc[k * dim..(k + 1) * dim]);
-        if exclusion > 0.0 {
-            seen.push((k, d));
-        }
+    for (&k, &d) in inside.iter().zip(&dist) {
         match best {
             Some((bk, bd)) if d > bd || (d == bd && k > bk) => second = second.min(d),
             Some((_, bd)) => {
@@ -183,14 +196,16 @@ fn nearest(
     }
     let (bk, bd) = best?;
     if exclusion > 0.0 {
+        // The runner-up depends on where the nearest is, known only now.
         let (b, r2) = (points[bk], exclusion * exclusion);
-        second = seen
+        second = inside
             .iter()
-            .filter(|&&(k, _)| {
+            .zip(&dist)
+            .filter(|&(&k, _)| {
                 let (dx, dy) = (points[k][0] - b[0], points[k][1] - b[1]);
                 dx * dx + dy * dy > r2
             })
-            .map(|&(_, d)| d)
+            .map(|(_, &d)| d)
             .fold(f32::INFINITY, f32::min);
     }
     Some((bk, bd, second))

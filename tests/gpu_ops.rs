@@ -328,3 +328,43 @@ fn a_fused_chain_on_a_one_channel_convolution_output_matches_the_cpu() {
         "nn::conv2d output, fused sub + mask_fill: error {ours:.2e}"
     );
 }
+
+/// Gradient clipping by norm (FPFDCNN's Adam clips each parameter's gradient to norm 1) of a
+/// 1024x1024 weight, the size of FPFDCNN's largest layer. Burn's `GradientClipping::Norm` takes
+/// the norm with a whole-tensor sum, which lavapipe cuts short on its own (above); the square
+/// and the sum fused are right, and must stay so: on wgpu the clipped gradient matches the
+/// CPU's.
+#[test]
+fn gradient_clipping_of_a_million_weights_matches_the_cpu() {
+    use burn::grad_clipping::GradientClippingConfig;
+    use burn::nn::LinearConfig;
+    use burn::optim::GradientsParams;
+    let Some(gpu) = wgpu_device() else { return };
+    // The weight's gradient and its clipped version.
+    let run = |device: &Device| {
+        let device = device.clone().autodiff();
+        let layer = seeded_init(LinearConfig::new(1024, 1024).init(&device), 9);
+        let x = Tensor::<2>::from_data(TensorData::new(ramp(1024, 1), [1, 1024]), &device);
+        let w = Tensor::<2>::from_data(TensorData::new(ramp(1024, 2), [1, 1024]), &device);
+        let loss = sum_all(layer.forward(x) * w);
+        let grads = GradientsParams::from_grads(loss.backward(), &layer);
+        let raw = grads.get::<2>(layer.weight.id).expect("weight gradient");
+        let clipped = GradientClippingConfig::Norm(1.0)
+            .init()
+            .clip_gradient(raw.clone());
+        (values(raw), values(clipped))
+    };
+    let cpu = BackendKind::Flex.device().expect("flex");
+    let want = run(&cpu);
+    let got = run(&gpu);
+    let norm = |v: &[f32]| v.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>().sqrt();
+    eprintln!(
+        "gradient norm {:.4} (CPU), clipped to {:.6}",
+        norm(&want.0),
+        norm(&want.1)
+    );
+    assert!(norm(&want.0) > 2.0, "the gradient is clipped");
+    assert!((norm(&want.1) - 1.0).abs() < 1e-4, "clipped to norm 1");
+    let e = relative_error(&got.1, &want.1);
+    assert!(e <= TOLERANCE, "clipped gradient on wgpu: {e:.2e}");
+}

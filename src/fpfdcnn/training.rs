@@ -242,10 +242,18 @@ pub fn run(config_path: &Path, config_text: &str, opts: &RunOptions) -> Result<(
         train.frames.len(),
         val.pairs.len(),
     );
-    // The device's generator draws the initial weights (as since the first FPFDCNN runs,
-    // so seeds keep their meaning).
-    device.seed(cfg.seed);
-    let model = cfg.network().init(&device)?;
+    // A CPU backend's generator draws the initial weights (as since the first FPFDCNN runs,
+    // so seeds keep their meaning), on a GPU run too: a GPU's generator draws other numbers
+    // from the same seed, and its run would start from other weights than the CPU's.
+    let draw = if crate::nn::backend::is_cpu(&device) {
+        device.clone()
+    } else {
+        crate::nn::BackendKind::Ndarray
+            .autodiff_device()
+            .map_err(|e| Error::msg(e.to_string()))?
+    };
+    draw.seed(cfg.seed);
+    let model = crate::nn::init::drawn(cfg.network().init(&draw)?).fork(&device);
     let model = match (&cfg.init, opts.resume) {
         (Some(init), false) => {
             let (weights, config) = crate::training::resolve_checkpoint(init)?;
@@ -368,5 +376,136 @@ impl Learner for FpLearner<'_> {
                 log_y: false,
             },
         ]
+    }
+}
+
+/// FPFDCNN's training step on wgpu against the CPU's (built with the `wgpu` feature; lavapipe is
+/// enough): `cargo test --release --features wgpu --lib fpfdcnn::training::gpu_tests`.
+#[cfg(all(test, feature = "wgpu"))]
+mod gpu_tests {
+    use super::*;
+    use crate::dataset::FpMatch;
+    use crate::nn::{BackendKind, seeded_init};
+
+    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .expect("f32")
+    }
+
+    /// A deterministic batch of `n` pairs at `[h, w]` with `m` matches each.
+    fn batch(device: &Device, n: usize, [h, w]: [usize; 2], m: usize) -> FpBatch {
+        let image = |salt: usize| -> Vec<f32> {
+            (0..n * h * w)
+                .map(|i| (((i * 7919 + salt * 104729) % 1009) as f32) / 1009.0)
+                .collect()
+        };
+        let target = |salt: usize| -> Vec<f32> {
+            (0..n * h * w)
+                .map(|i| f32::from((i * 31 + salt * 17).is_multiple_of(97)))
+                .collect()
+        };
+        let t = |v: Vec<f32>| Tensor::<4>::from_data(TensorData::new(v, [n, 1, h, w]), device);
+        let matches = (0..n)
+            .map(|b| {
+                (0..m)
+                    .map(|k| {
+                        let x = 5.0 + ((k * 37 + b * 11) % (w - 12)) as f32 + 0.25;
+                        let y = 5.0 + ((k * 53 + b * 7) % (h - 12)) as f32 + 0.5;
+                        FpMatch {
+                            a: [x, y],
+                            b: [x + 1.5, y - 0.75],
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        FpBatch {
+            image_a: t(image(1)),
+            image_b: t(image(2)),
+            target_a: t(target(1)),
+            target_b: t(target(2)),
+            matches,
+        }
+    }
+
+    /// Every parameter's gradient, in the module's order.
+    struct ParamGrads<'a> {
+        grads: &'a burn::tensor::Gradients,
+        out: Vec<Vec<f32>>,
+    }
+
+    impl burn::module::ModuleVisitor for ParamGrads<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &burn::module::Param<Tensor<D>>) {
+            if let Some(g) = param.val().grad(self.grads) {
+                self.out.push(values(g));
+            }
+        }
+    }
+
+    /// The loss terms (detector, localisation, descriptor) and the parameter gradients of one
+    /// step of the tiny config's network from seeded weights.
+    fn step(device: &Device, cfg: &FpfdcnnTrainConfig) -> (Vec<f64>, Vec<Vec<f32>>) {
+        let model = seeded_init(cfg.network().init(device).expect("init"), 3);
+        let l = batch_loss(&model, batch(device, 2, cfg.data.size, 24), cfg).expect("loss");
+        let terms = vec![l.detector, l.localization, l.descriptor];
+        let grads = l.total.backward();
+        let mut v = ParamGrads {
+            grads: &grads,
+            out: Vec::new(),
+        };
+        model.visit(&mut v);
+        (terms, v.out)
+    }
+
+    /// Each loss term alone and all three together: the terms within 1e-4 of the CPU's and
+    /// every parameter's gradient within 1e-4 of the model's largest (FPFDCNN has no batch
+    /// norm, so float32 sums in another order stay near 1e-5 here: lavapipe, 2026-12-07).
+    /// Skipped without a wgpu adapter unless `SDF_SLAM_REQUIRE_GPU=1`.
+    #[test]
+    fn the_training_step_on_wgpu_matches_the_cpu_term_by_term() {
+        let Ok(gpu) = BackendKind::Wgpu.autodiff_device() else {
+            assert!(
+                std::env::var("SDF_SLAM_REQUIRE_GPU").is_err(),
+                "no wgpu adapter"
+            );
+            eprintln!("no wgpu adapter: skipped");
+            return;
+        };
+        let root = env!("CARGO_MANIFEST_DIR");
+        let path = Path::new(root).join("configs/train/fpfdcnn_tiny.toml");
+        let text = std::fs::read_to_string(&path).expect("config");
+        let base = FpfdcnnTrainConfig::parse(&text, &path).expect("parse");
+        let cpu = BackendKind::Flex.autodiff_device().expect("flex");
+        let mut failures = Vec::new();
+        for which in ["all", "detector", "localization", "descriptor"] {
+            let mut cfg = base.clone();
+            if which != "all" {
+                let only = |term: &str| f64::from(u8::from(which == term));
+                cfg.loss.detector_weight = only("detector");
+                cfg.loss.localization_weight = only("localization");
+                cfg.loss.descriptor_weight = only("descriptor");
+            }
+            let (tc, gc) = step(&cpu, &cfg);
+            let (tg, gg) = step(&gpu, &cfg);
+            let terms = tg
+                .iter()
+                .zip(&tc)
+                .map(|(g, c)| (g - c).abs() / c.abs().max(1e-6))
+                .fold(0.0f64, f64::max);
+            let scale = gc.iter().flatten().fold(1e-12f32, |m, v| m.max(v.abs()));
+            let grads = gg
+                .iter()
+                .zip(&gc)
+                .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+                .fold(0.0f32, f32::max)
+                / scale;
+            eprintln!("{which}: terms {terms:.2e}, gradients {grads:.2e} of the largest");
+            if gg.len() != gc.len() || terms > 1e-4 || grads > 1e-4 {
+                failures.push(format!("{which}: terms {terms:.2e}, gradients {grads:.2e}"));
+            }
+        }
+        assert!(failures.is_empty(), "{}", failures.join("\n"));
     }
 }

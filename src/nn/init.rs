@@ -8,7 +8,7 @@
 //! area. Other parameters (batch-norm γ = 1, β = 0, running statistics) keep their constant
 //! initial values.
 
-use burn::module::{ModuleMapper, Param};
+use burn::module::{ModuleMapper, ModuleVisitor, Param};
 use burn::prelude::*;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -22,6 +22,22 @@ pub fn seeded_init<M: Module>(module: M, seed: u64) -> M {
         path: Vec::new(),
     };
     module.map(&mut mapper)
+}
+
+/// `module` with every parameter's initial value drawn now. Burn draws it lazily, at the
+/// parameter's first use and on the device it is on by then: a module built on the CPU and
+/// moved to a GPU before its first use draws from the GPU's generator.
+pub fn drawn<M: Module>(module: M) -> M {
+    module.visit(&mut Draw);
+    module
+}
+
+struct Draw;
+
+impl ModuleVisitor for Draw {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let _ = param.val();
+    }
 }
 
 struct SeededInit {

@@ -173,6 +173,9 @@ fn nearest(
     dim: usize,
     exclusion: f32,
 ) -> Option<(usize, f32, f32)> {
+    // The window's candidates first, then their distances in one tight loop: the distance
+    // loop with the window test and the running minimum inside it took 6.9-7.0 % of a
+    // `slam` profile (80 TUM frames) where this takes 4.9-5.2 %, the two buffers included.
     let inside: Vec<usize> = grid
         .candidates(centre, half)
         .filter(|&k| {

@@ -13,23 +13,7 @@ use sdf_slam::nn::{BackendKind, OpImpl, ShapeTrace, seeded_init, set_op_impl};
 use sdf_slam::sdfcnn::{SdfcnnConfig, SdfcnnLossConfig};
 
 mod common;
-
-/// The GPU backends this build has, with a device here.
-fn gpu_devices() -> Vec<(BackendKind, Device)> {
-    let require = std::env::var("SDF_SLAM_REQUIRE_GPU").is_ok_and(|v| v == "1");
-    let mut found = Vec::new();
-    for b in BackendKind::ALL
-        .into_iter()
-        .filter(|b| b.is_gpu() && b.is_compiled())
-    {
-        match b.device() {
-            Ok(d) => found.push((b, d)),
-            Err(e) if require => panic!("SDF_SLAM_REQUIRE_GPU=1: {e}"),
-            Err(e) => eprintln!("skipped: {e}"),
-        }
-    }
-    found
-}
+use common::gpu_devices;
 
 fn ramp(shape: [usize; 4], device: &Device) -> Tensor<4> {
     let n: usize = shape.iter().product();
@@ -285,11 +269,15 @@ fn sdfcnn_training_step_matches_the_cpu_layer_by_layer() {
 
 /// `train` on the GPU: the tiny SDFCNN and FPFDCNN configs' first epochs (the same initial
 /// weights, batches and augmentation on every backend). The first epoch's losses, from the same
-/// weights, are within 1e-3 of flex's; later epochs within 1e-2, since Adam's first steps, about
-/// `lr` times the sign of each gradient, turn float noise into different weights: ndarray and
-/// flex themselves part by 2.3e-3 on SDFCNN's training loss by the fourth epoch (lavapipe by
-/// 5.4e-3 at most, 2026-12-07). FPFDCNN on lavapipe gave flex's first-epoch losses to the
-/// printed digit and its second within 9e-5 (2026-12-07).
+/// weights, are within 1e-4 of flex's and every epoch's validation loss within 1e-3. A later
+/// epoch's training loss is within 2e-2: on the tiny SDFCNN config (three images, one step an
+/// epoch) it is the loss of a batch after a few Adam steps, whose first is `lr` times the sign of
+/// each gradient, so that every gradient element of the other sign on another backend takes a
+/// full step the other way (1,031 of SDFCNN's 2,988,137 on lavapipe and 2,020 on flex against
+/// float64, `tests/gpu_float64.rs`). On lavapipe (2026-12-07), SDFCNN's fourth training loss was
+/// 1.3e-2 from flex's (ndarray's 2.3e-3: its kernels and flex's are the same), its validation
+/// losses within 2.0e-4; FPFDCNN's first epoch gave flex's losses to the printed digit and
+/// its second within 9e-5.
 #[test]
 fn the_tiny_configs_train_on_the_gpu_as_on_the_cpu() {
     let gpus = gpu_devices();
@@ -346,13 +334,17 @@ fn the_tiny_configs_train_on_the_gpu_as_on_the_cpu() {
                     g.1,
                     c.1
                 );
-                let tol = if epoch == 0 { 1e-3 } else { 1e-2 };
-                let close = |a: f64, b: f64| (a - b).abs() <= tol * b.abs().max(1e-6);
+                let (train_tol, val_tol) = if epoch == 0 {
+                    (1e-4, 1e-4)
+                } else {
+                    (2e-2, 1e-3)
+                };
+                let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1e-6);
                 let train_close = match (g.0, c.0) {
-                    (Some(a), Some(b)) => close(a, b),
+                    (Some(a), Some(b)) => close(a, b, train_tol),
                     (a, b) => a.is_none() && b.is_none(),
                 };
-                if !close(g.1, c.1) || !train_close {
+                if !close(g.1, c.1, val_tol) || !train_close {
                     failures.push(format!(
                         "{config} on {b}, epoch {}: {g:?} vs {c:?}",
                         epoch + 1

@@ -137,19 +137,28 @@ impl<B: Backend, C: CheckpointStrategy> BatchNormTrainOps for Autodiff<B, C> {
     }
 }
 
-/// `bn.forward(x)`: in training (autodiff device, `bn` not frozen) on the CPU backends under
-/// [`OpImpl::Auto`] through the fused kernel, updating the running statistics as Burn does;
-/// otherwise Burn's own.
+/// `bn.forward(x)`: in training (autodiff device, `bn` not frozen) under [`OpImpl::Auto`],
+/// on the CPU backends through the fused kernel and on the GPU backends through
+/// [`batch_norm_staged`], updating the running statistics as Burn does; otherwise Burn's own.
 pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     let device = x.device();
-    let fused = op_impl() == OpImpl::Auto
-        && is_cpu(&device)
+    let training = op_impl() == OpImpl::Auto
         && device.is_autodiff()
         && bn.training.is_enabled()
         && D >= 2
         && x.dims()[1] == bn.gamma.dims()[0];
-    if !fused {
+    if !training {
         return bn.forward(x);
+    }
+    if !is_cpu(&device) {
+        if D != 4 {
+            return bn.forward(x);
+        }
+        let dims = x.dims();
+        let (out, mean, var) =
+            batch_norm_staged(bn, x.reshape([dims[0], dims[1], dims[2], dims[3]]));
+        update_running(bn, mean, var);
+        return out.reshape(dims);
     }
     let (out, mean, var) = Dispatch::batch_norm_train_fused(
         x.into_dispatch(),
@@ -161,6 +170,13 @@ pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
         Tensor::<1>::from_dispatch(mean).detach(),
         Tensor::<1>::from_dispatch(var).detach(),
     );
+    update_running(bn, mean, var);
+    Tensor::from_dispatch(out)
+}
+
+/// Moves `bn`'s running statistics toward a batch's, as Burn's `BatchNorm` does.
+fn update_running(bn: &BatchNorm, mean: Tensor<1>, var: Tensor<1>) {
+    let device = mean.device();
     let momentum = bn.momentum;
     let update = |running: &burn::module::RunningState<Tensor<1>>, batch: Tensor<1>| {
         let value = running
@@ -170,9 +186,34 @@ pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
             .add(batch.mul_scalar(momentum));
         running.update(value.detach());
     };
-    update(&bn.running_mean, mean);
-    update(&bn.running_var, var);
-    Tensor::from_dispatch(out)
+    update(&bn.running_mean, mean.detach());
+    update(&bn.running_var, var.detach());
+}
+
+/// Batch norm in training mode (biased variance, as Burn's) from tensor ops whose every
+/// reduction runs over one axis at a time, forward (the statistics: width, then height, then
+/// batch) and backward (each staged broadcast's gradient sums one axis). On Mesa's software
+/// Vulkan, Burn's own batch norm takes its statistics in one pass over batch × height × width,
+/// and the variance of SDFCNN's first layer came out 2.0e-6 from float64 where three stages
+/// give 1.3e-7 (flex: 9.6e-8), and its whole training step's gradients 6.5e-3 of the largest
+/// from float64 (flex: 1.6e-3; `tests/gpu_float64.rs`, 2026-12-07). One axis at a time also
+/// keeps each reduction far below lavapipe's 65,535 iterations a loop.
+/// Returns the output, the batch's mean and its variance.
+pub(crate) fn batch_norm_staged(bn: &BatchNorm, x: Tensor<4>) -> (Tensor<4>, Tensor<1>, Tensor<1>) {
+    let [n, c, h, w] = x.dims();
+    let staged_mean = |t: Tensor<4>| t.mean_dim(3).mean_dim(2).mean_dim(0);
+    // `[1, c, 1, 1]` to `[n, c, h, w]`, one axis at a time, so that its gradient is summed so.
+    let broadcast = |t: Tensor<4>| {
+        t.expand([1, c, 1, w])
+            .expand([1, c, h, w])
+            .expand([n, c, h, w])
+    };
+    let mean = staged_mean(x.clone());
+    let centred = x - broadcast(mean.clone());
+    let var = staged_mean(centred.clone().powi_scalar(2));
+    let scale = bn.gamma.val().reshape([1, c, 1, 1]) / var.clone().add_scalar(bn.epsilon).sqrt();
+    let out = centred * broadcast(scale) + broadcast(bn.beta.val().reshape([1, c, 1, 1]));
+    (out, mean.reshape([c]), var.reshape([c]))
 }
 
 simd_fn! {
@@ -375,9 +416,19 @@ mod tests {
         }
     }
 
+    /// Which batch norm [`run`] takes.
+    #[derive(Debug, Clone, Copy)]
+    enum Path {
+        Burn,
+        /// [`batch_norm`]: the fused kernel on the CPU backends.
+        Fused,
+        /// [`batch_norm_staged`], the GPU backends' path, here on a CPU backend.
+        Staged,
+    }
+
     /// Output, gradients of x, γ, β and the updated running statistics, with Burn's batch
-    /// norm or [`batch_norm`], on `device`.
-    fn run(device: &Device, fused: bool, x: &Tensor<4>, up: &Tensor<4>) -> Vec<Vec<f32>> {
+    /// norm, [`batch_norm`] or [`batch_norm_staged`], on `device`.
+    fn run(device: &Device, path: Path, x: &Tensor<4>, up: &Tensor<4>) -> Vec<Vec<f32>> {
         let device = device.clone().autodiff();
         let mut bn = BatchNormConfig::new(x.dims()[1])
             .with_momentum(0.3)
@@ -391,10 +442,14 @@ mod tests {
         bn.beta = burn::module::Param::from_tensor(param(-0.2));
         let x = Tensor::<4>::from_data(x.to_data(), &device).require_grad();
         let up = Tensor::<4>::from_data(up.to_data(), &device);
-        let y = if fused {
-            batch_norm(&bn, x.clone())
-        } else {
-            bn.forward(x.clone())
+        let y = match path {
+            Path::Burn => bn.forward(x.clone()),
+            Path::Fused => batch_norm(&bn, x.clone()),
+            Path::Staged => {
+                let (y, mean, var) = batch_norm_staged(&bn, x.clone());
+                update_running(&bn, mean, var);
+                y
+            }
         };
         let grads = (y.clone() * up).sum().backward();
         vec![
@@ -414,9 +469,14 @@ mod tests {
             // An offset mean, so that the centring matters.
             let x = Tensor::<4>::random(shape, Distribution::Uniform(2.0, 5.0), &reference);
             let up = Tensor::<4>::random(shape, Distribution::Uniform(-1.0, 1.0), &reference);
-            let want = run(&reference, false, &x, &up);
-            for device in [Device::ndarray(), Device::flex()] {
-                let got = run(&device, true, &x, &up);
+            let want = run(&reference, Path::Burn, &x, &up);
+            for (device, path) in [
+                (Device::ndarray(), Path::Fused),
+                (Device::flex(), Path::Fused),
+                (Device::ndarray(), Path::Staged),
+                (Device::flex(), Path::Staged),
+            ] {
+                let got = run(&device, path, &x, &up);
                 let names = [
                     "output",
                     "d x",
@@ -426,7 +486,7 @@ mod tests {
                     "running var",
                 ];
                 for ((name, g), w) in names.iter().zip(&got).zip(&want) {
-                    assert_close(&format!("{shape:?} {name} on {device:?}"), g, w);
+                    assert_close(&format!("{shape:?} {name}, {path:?} on {device:?}"), g, w);
                 }
             }
         }

@@ -134,3 +134,22 @@ pub fn sdfcnn_targets(
         Tensor::from_data(TensorData::new(depth, [n, 1, h, w]), device),
     )
 }
+
+/// The GPU backends this build has, with a device here; each that finds none is reported and
+/// skipped, unless `SDF_SLAM_REQUIRE_GPU=1` makes that a failure (the device checks in the
+/// docs set it).
+pub fn gpu_devices() -> Vec<(BackendKind, burn::prelude::Device)> {
+    let require = std::env::var("SDF_SLAM_REQUIRE_GPU").is_ok_and(|v| v == "1");
+    let mut found = Vec::new();
+    for b in BackendKind::ALL
+        .into_iter()
+        .filter(|b| b.is_gpu() && b.is_compiled())
+    {
+        match b.device() {
+            Ok(d) => found.push((b, d)),
+            Err(e) if require => panic!("SDF_SLAM_REQUIRE_GPU=1: {e}"),
+            Err(e) => eprintln!("skipped: {e}"),
+        }
+    }
+    found
+}

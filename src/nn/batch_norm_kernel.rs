@@ -138,8 +138,9 @@ impl<B: Backend, C: CheckpointStrategy> BatchNormTrainOps for Autodiff<B, C> {
 }
 
 /// `bn.forward(x)`: in training (autodiff device, `bn` not frozen) under [`OpImpl::Auto`],
-/// on the CPU backends through the fused kernel and on the GPU backends through
-/// [`batch_norm_staged`], updating the running statistics as Burn does; otherwise Burn's own.
+/// on the CPU backends through the fused kernel and on the GPU backends through tensor ops
+/// that reduce one axis at a time (width, height, batch; forward and backward), updating the
+/// running statistics as Burn does; otherwise Burn's own.
 pub fn batch_norm<const D: usize>(bn: &BatchNorm, x: Tensor<D>) -> Tensor<D> {
     let device = x.device();
     let training = op_impl() == OpImpl::Auto

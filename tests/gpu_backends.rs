@@ -274,7 +274,7 @@ fn sdfcnn_training_step_matches_the_cpu_layer_by_layer() {
 /// epoch) it is the loss of a batch after a few Adam steps, whose first is `lr` times the sign of
 /// each gradient, so that every gradient element of the other sign on another backend takes a
 /// full step the other way (1,031 of SDFCNN's 2,988,137 on lavapipe and 2,020 on flex against
-/// float64, `tests/gpu_float64.rs`). On lavapipe (2026-12-07), SDFCNN's fourth training loss was
+/// float64, `tests/float64_step.rs`). On lavapipe (2026-12-07), SDFCNN's fourth training loss was
 /// 1.3e-2 from flex's (ndarray's 2.3e-3: its kernels and flex's are the same), its validation
 /// losses within 2.0e-4; FPFDCNN's first epoch gave flex's losses to the printed digit and
 /// its second within 9e-5.

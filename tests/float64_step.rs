@@ -122,11 +122,7 @@ fn step(model: &Sdfcnn, b: &Batch, device: &Device) -> Step {
     let out = model
         .forward_quarter_traced(tensor(&b.images, 3), &mut trace)
         .expect("forward");
-    let layers = trace
-        .layers()
-        .iter()
-        .map(|l| (l.name.clone(), l.values.clone().unwrap_or_default()))
-        .collect();
+    let layers = common::traced_layers(&trace);
     let total = SdfcnnLossConfig::default()
         .forward(out, labels, tensor(&b.depth, 1))
         .total;

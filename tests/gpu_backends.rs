@@ -129,11 +129,7 @@ fn sdfcnn_step(device: &Device, [h, w]: [usize; 2], batch: usize, dim: usize) ->
     let out = model
         .forward_quarter_traced(x.clone(), &mut trace)
         .expect("forward");
-    let layers = trace
-        .layers()
-        .iter()
-        .map(|l| (l.name.clone(), l.values.clone().unwrap_or_default()))
-        .collect();
+    let layers = common::traced_layers(&trace);
     let loss = SdfcnnLossConfig::default().forward(out, labels, depth);
     let parts = [
         values(loss.seg),

@@ -153,3 +153,12 @@ pub fn gpu_devices() -> Vec<(BackendKind, burn::prelude::Device)> {
     }
     found
 }
+
+/// Every layer a trace recorded, by name, with its values (empty where it kept none).
+pub fn traced_layers(trace: &sdf_slam::nn::ShapeTrace) -> Vec<(String, Vec<f32>)> {
+    trace
+        .layers()
+        .iter()
+        .map(|l| (l.name.clone(), l.values.clone().unwrap_or_default()))
+        .collect()
+}

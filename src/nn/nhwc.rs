@@ -65,12 +65,18 @@ impl NhwcView<'_> {
 
     /// A compact copy.
     pub fn to_owned(self) -> Nhwc {
-        let mut out = Nhwc::zeros(self.h, self.w, self.c);
-        for (y, row) in out.data.chunks_exact_mut(self.w * self.c).enumerate() {
+        let row = self.w * self.c;
+        let mut data = Vec::with_capacity(self.h * row);
+        for y in 0..self.h {
             let at = y * self.stride * self.c;
-            row.copy_from_slice(&self.data[at..at + self.w * self.c]);
+            data.extend_from_slice(&self.data[at..at + row]);
         }
-        out
+        Nhwc {
+            h: self.h,
+            w: self.w,
+            c: self.c,
+            data,
+        }
     }
 }
 
@@ -221,29 +227,35 @@ pub fn add(a: &mut Nhwc, b: &NhwcView) {
 }
 
 /// Max pooling with a `k×k` window (odd `k`), stride 1 and padding `k / 2` that never wins
-/// (Burn's and PyTorch's `-inf` padding): a row pass, then a column pass.
+/// (Burn's and PyTorch's `-inf` padding): a row pass, then a column pass, each taking the
+/// maximum with whole rows shifted by `1..=k / 2` pixels (or rows) either way.
 pub(crate) fn max_pool(x: &NhwcView, k: usize) -> Nhwc {
     let (r, c) = (k / 2, x.c);
-    let mut rows = Nhwc::zeros(x.h, x.w, c);
+    let row = x.w * c;
+    let mut rows = NhwcView::to_owned(*x);
     rows.data
-        .par_chunks_mut(x.w * c)
+        .par_chunks_mut(row.max(1))
         .enumerate()
         .for_each(|(y, out)| {
-            for (xx, o) in out.chunks_exact_mut(c).enumerate() {
-                o.copy_from_slice(x.pixel(y, xx));
-                for j in xx.saturating_sub(r)..(xx + r + 1).min(x.w) {
-                    max_assign(o, x.pixel(y, j));
+            let src = &x.data[y * x.stride * c..][..row];
+            for j in 1..=r.min(x.w.saturating_sub(1)) {
+                let n = (x.w - j) * c;
+                // Pixel xx takes its right neighbour xx + j, then its left one xx − j.
+                max_assign(&mut out[..n], &src[j * c..]);
+                max_assign(&mut out[j * c..], &src[..n]);
+            }
+        });
+    let mut out = rows.clone();
+    out.data
+        .par_chunks_mut(row.max(1))
+        .enumerate()
+        .for_each(|(y, o)| {
+            for i in y.saturating_sub(r)..(y + r + 1).min(x.h) {
+                if i != y {
+                    max_assign(o, &rows.data[i * row..(i + 1) * row]);
                 }
             }
         });
-    let mut out = Nhwc::zeros(x.h, x.w, c);
-    let row = x.w * c;
-    out.data.par_chunks_mut(row).enumerate().for_each(|(y, o)| {
-        o.copy_from_slice(&rows.data[y * row..(y + 1) * row]);
-        for i in y.saturating_sub(r)..(y + r + 1).min(x.h) {
-            max_assign(o, &rows.data[i * row..(i + 1) * row]);
-        }
-    });
     out
 }
 
@@ -345,5 +357,55 @@ mod tests {
         let mut s = vec![-100.0f32, 0.0, 100.0];
         activate(&mut s, Activation::Sigmoid);
         assert!(s[0] >= 0.0 && s[0] < 1e-37 && s[1] == 0.5 && s[2] == 1.0);
+    }
+
+    /// The window maximum pixel by pixel, straight from the definition.
+    fn max_pool_reference(x: &NhwcView, k: usize) -> Vec<f32> {
+        let r = (k / 2) as isize;
+        let mut out = Vec::with_capacity(x.h * x.w * x.c);
+        for y in 0..x.h as isize {
+            for xx in 0..x.w as isize {
+                for ch in 0..x.c {
+                    let mut m = f32::NEG_INFINITY;
+                    for i in (y - r).max(0)..(y + r + 1).min(x.h as isize) {
+                        for j in (xx - r).max(0)..(xx + r + 1).min(x.w as isize) {
+                            m = m.max(x.pixel(i as usize, j as usize)[ch]);
+                        }
+                    }
+                    out.push(m);
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn max_pool_equals_the_window_maximum_on_wide_and_narrow_images() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        // Widths and heights below, at and above the window; rows wider than the image.
+        for (h, w, c, stride, k) in [
+            (1, 1, 3, 1, 5),
+            (2, 3, 2, 3, 5),
+            (4, 2, 5, 4, 5),
+            (7, 9, 16, 9, 5),
+            (6, 11, 8, 13, 5),
+            (5, 6, 4, 6, 3),
+        ] {
+            // Small integers: ties are common.
+            let data: Vec<f32> = (0..h * stride * c)
+                .map(|_| rng.random_range(-4..5) as f32)
+                .collect();
+            let x = NhwcView {
+                h,
+                w,
+                c,
+                stride,
+                data: &data,
+            };
+            let got = max_pool(&x, k);
+            assert_eq!([got.h, got.w, got.c], [h, w, c]);
+            assert_eq!(got.data, max_pool_reference(&x, k), "{h}x{w}x{c}, k {k}");
+        }
     }
 }

@@ -315,11 +315,81 @@ impl PackedConv {
         }
     }
 
-    /// The convolution of `x`, bias and activation included (a compact copy of
-    /// [`Self::forward_view`]'s output, with buffers of its own).
+    /// The convolution of `x`, bias and activation included, as a compact image with buffers
+    /// of its own: [`Self::forward_view`]'s output, moved out when it is compact (Winograd's,
+    /// and every 1x1 convolution's) and copied otherwise. A 1x1 stride-1 convolution of a
+    /// compact image multiplies the image itself (no padded copy), the same product.
     pub fn forward(&self, x: &NhwcView) -> Result<Nhwc, PackError> {
+        if self.k == 1 && self.stride == 1 && self.padding == 0 && x.stride == x.w {
+            return self.pointwise(x);
+        }
         let mut scratch = Scratch::default();
-        Ok(self.forward_view(*x, &mut scratch)?.to_owned())
+        let (h, w, c, stride) = {
+            let v = self.forward_view(*x, &mut scratch)?;
+            (v.h, v.w, v.c, v.stride)
+        };
+        if stride != w {
+            return Ok(NhwcView {
+                h,
+                w,
+                c,
+                stride,
+                data: &scratch.wide,
+            }
+            .to_owned());
+        }
+        // Both paths that give a compact result write it from the start of `wide`.
+        let mut data = std::mem::take(&mut scratch.wide);
+        data.truncate(h * w * c);
+        Ok(Nhwc { h, w, c, data })
+    }
+
+    /// A 1x1 stride-1 unpadded convolution of a compact image: one product over its pixels
+    /// (the one [`Self::forward_view`] computes from its copy of the image), then the epilogue.
+    fn pointwise(&self, x: &NhwcView) -> Result<Nhwc, PackError> {
+        if x.c != self.cin {
+            return Err(PackError::Channels {
+                got: x.c,
+                expected: self.cin,
+            });
+        }
+        let rows = x.h * x.w;
+        let mut out = Nhwc::zeros(x.h, x.w, self.cout);
+        if rows == 0 {
+            return Err(PackError::Size { h: x.h, w: x.w });
+        }
+        assert!(
+            x.data.len() >= rows * self.c,
+            "a compact view holds h·w·c values"
+        );
+        // SAFETY: lhs is x's [rows, c] (checked above), rhs the [c, cout] weight, dst
+        // [rows, cout] = out.data.len().
+        unsafe {
+            self.product(
+                &mut out.data,
+                rows,
+                self.c,
+                x.data.as_ptr(),
+                self.c,
+                self.weight.as_ptr(),
+                false,
+            )
+        };
+        self.epilogue(&mut out.data, x.w);
+        Ok(out)
+    }
+
+    /// Adds the bias and applies the activation to `rows_of` pixels at a time, in place.
+    fn epilogue(&self, data: &mut [f32], rows_of: usize) {
+        let (bias, act, cout) = (&self.bias, self.activation, self.cout);
+        data.par_chunks_mut(rows_of * cout).for_each(|row| {
+            for px in row.chunks_exact_mut(cout) {
+                for (v, &b) in px.iter_mut().zip(bias) {
+                    *v += b;
+                }
+            }
+            activate(row, act);
+        });
     }
 
     /// The convolution of `x`, bias and activation included, computed in `scratch`, which
@@ -444,19 +514,11 @@ impl PackedConv {
             }
         }
         // Epilogue, in place over whole rows (the extra columns too: cheaper than skipping).
-        let (bias, act, cout) = (&self.bias, self.activation, self.cout);
-        wide.par_chunks_mut(sw * cout).for_each(|row| {
-            for px in row.chunks_exact_mut(cout) {
-                for (v, &b) in px.iter_mut().zip(bias) {
-                    *v += b;
-                }
-            }
-            activate(row, act);
-        });
+        self.epilogue(wide, sw);
         Ok(NhwcView {
             h: oh,
             w: ow,
-            c: cout,
+            c: self.cout,
             stride: sw,
             data: &scratch.wide,
         })

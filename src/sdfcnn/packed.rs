@@ -78,7 +78,7 @@ impl Block {
         })
     }
 
-    fn forward(&self, x: Nhwc) -> Result<Nhwc, PackError> {
+    fn forward(&self, x: &Nhwc) -> Result<Nhwc, PackError> {
         let y = self.expand.forward(&x.view())?;
         let y = self.depthwise.forward(&y.view())?;
         let mut y = self.project.forward(&y.view())?;
@@ -110,10 +110,12 @@ impl PackedCrp {
     }
 
     fn forward(&self, mut x: Nhwc) -> Result<Nhwc, PackError> {
-        let mut top = x.clone();
+        // The first pool reads `x` itself, each later one the previous convolution's output.
+        let mut top: Option<Nhwc> = None;
         for conv in &self.convs {
-            top = conv.forward(&nhwc::max_pool(&top.view(), 5).view())?;
-            nhwc::add(&mut x, &top.view());
+            let t = conv.forward(&nhwc::max_pool(&top.as_ref().unwrap_or(&x).view(), 5).view())?;
+            nhwc::add(&mut x, &t.view());
+            top = Some(t);
         }
         Ok(x)
     }
@@ -219,13 +221,21 @@ impl PackedSdfcnn {
                 px[c] = (px[c] - self.mean[c]) * inv[c];
             }
         });
-        let mut x = self.layer1.forward(&x.view())?;
-        let mut features = Vec::with_capacity(self.stages.len());
+        let layer1 = self.layer1.forward(&x.view())?;
+        // Each stage's output is kept (the decoder reads them all) and read by the next stage.
+        let mut features: Vec<Nhwc> = Vec::with_capacity(self.stages.len());
         for blocks in &self.stages {
+            let mut x: Option<Nhwc> = None;
             for b in blocks {
-                x = b.forward(x)?;
+                let input = x.as_ref().or(features.last()).unwrap_or(&layer1);
+                x = Some(b.forward(input)?);
             }
-            features.push(x.clone());
+            let Some(x) = x else {
+                return Err(PackError::Unsupported(
+                    "an encoder stage without blocks".into(),
+                ));
+            };
+            features.push(x);
         }
         let [_, l24, l32, l64, l96, l160, l320] = &features[..] else {
             unreachable!("seven encoder stages")

@@ -16,6 +16,8 @@ pub(crate) mod packed_conv;
 pub(crate) mod packed_depthwise;
 pub mod params;
 pub mod pool;
+#[cfg(target_arch = "x86_64")]
+mod pool_avx2;
 pub(crate) mod pool_kernel;
 pub mod reduce;
 pub(crate) mod relu6_kernel;

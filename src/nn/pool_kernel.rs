@@ -157,7 +157,7 @@ fn forward<B: Backend>(x: FloatTensor<B>, k: usize) -> (FloatTensor<B>, Vec<u8>)
         out.par_chunks_mut(plane)
             .zip(offsets.par_chunks_mut(plane))
             .zip(x.par_chunks(plane))
-            .for_each(|((out, offsets), x)| pool_plane(x, [h, w], k, out, offsets));
+            .for_each(|((out, offsets), x)| pool_plane_fastest(x, [h, w], k, out, offsets));
     }
     (tensor::<B>(out, shape, dtype, &device), offsets)
 }
@@ -185,6 +185,19 @@ fn backward<B: Backend>(grad: FloatTensor<B>, offsets: &[u8], k: usize) -> Float
             });
     }
     tensor::<B>(gin, shape, dtype, &device)
+}
+
+/// [`pool_plane`], through the AVX2 kernel (`super::pool_avx2`) on a NaN-free plane where
+/// the CPU has AVX2.
+fn pool_plane_fastest(x: &[f32], hw: [usize; 2], k: usize, out: &mut [f32], offsets: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && !x.iter().any(|v| v.is_nan()) {
+        // SAFETY: the CPU has AVX2; the planes hold h·w values and k is odd and at most
+        // MAX_KERNEL = 15 (`max_pool2d_same`).
+        unsafe { super::pool_avx2::pool_plane(x, hw, k, out, offsets) };
+        return;
+    }
+    pool_plane(x, hw, k, out, offsets)
 }
 
 /// Whether `v` replaces the running maximum `m` (strictly greater; a NaN wins once).
@@ -307,6 +320,48 @@ mod tests {
                     let want = run(&reference, &x, &up, |x| max_pool2d(x, options.clone()));
                     let got = run(&device, &x, &up, |x| max_pool2d_same(x, k));
                     assert_eq!(got, want, "{shape:?} k {k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_avx2_plane_pass_equals_the_portable_one_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+            // Planes narrower than a vector and than the window, and wide ones with remainders;
+            // small integers (ties everywhere) and −∞.
+            for (h, w, k) in [
+                (1, 1, 5),
+                (3, 2, 5),
+                (2, 7, 5),
+                (5, 8, 5),
+                (6, 12, 5),
+                (9, 13, 5),
+                (7, 21, 3),
+                (11, 37, 7),
+                (4, 100, 5),
+                (3, 30, 15),
+            ] {
+                for levels in [3, 1000] {
+                    let x: Vec<f32> = (0..h * w)
+                        .map(|_| match rng.random_range(0..levels + 1) {
+                            0 => f32::NEG_INFINITY,
+                            v => v as f32,
+                        })
+                        .collect();
+                    let (mut out, mut off) = (vec![0.0; h * w], vec![0u8; h * w]);
+                    let (mut want, mut want_off) = (vec![0.0; h * w], vec![0u8; h * w]);
+                    // SAFETY: AVX2 checked above; sizes as the kernel asks.
+                    unsafe {
+                        super::super::pool_avx2::pool_plane(&x, [h, w], k, &mut out, &mut off)
+                    };
+                    pool_plane(&x, [h, w], k, &mut want, &mut want_off);
+                    assert_eq!(off, want_off, "{h}x{w} k {k}: taps");
+                    let bits = |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&out), bits(&want), "{h}x{w} k {k}: values");
                 }
             }
         }

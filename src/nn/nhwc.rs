@@ -299,11 +299,11 @@ pub(crate) fn exp(x: f32) -> f32 {
     let x = x.clamp(-87.0, 88.0);
     let t = x * std::f32::consts::LOG2_E + SHIFT;
     let n = t - SHIFT;
-    let r = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.0
-        + r * (1.0
-            + r * (0.5
-                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    // Fused multiply-adds: one instruction a step inside `simd_fn!` (AVX2 + FMA, AVX-512).
+    let r = n.mul_add(-LN2_LO, n.mul_add(-LN2_HI, x));
+    let p = [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0]
+        .iter()
+        .fold(1.0 / 720.0, |acc: f32, &c| acc.mul_add(r, c));
     let n = t.to_bits() as i32 - 0x4B40_0000;
     p * f32::from_bits(((n + 127) as u32) << 23)
 }

@@ -354,10 +354,10 @@ impl PackedConv {
             });
         }
         let rows = x.h * x.w;
-        let mut out = Nhwc::zeros(x.h, x.w, self.cout);
         if rows == 0 {
             return Err(PackError::Size { h: x.h, w: x.w });
         }
+        let mut out = Nhwc::zeros(x.h, x.w, self.cout);
         assert!(
             x.data.len() >= rows * self.c,
             "a compact view holds h·w·c values"
@@ -643,6 +643,42 @@ mod tests {
             let shared = p.forward_view(x.view(), &mut scratch).unwrap().to_owned();
             assert_eq!(shared, p.forward(&x.view()).unwrap());
         }
+    }
+
+    #[test]
+    fn a_pointwise_convolution_multiplies_the_image_itself_with_the_same_result() {
+        let d = Device::flex();
+        let c = Conv2dConfig::new([5, 7], [1, 1]).init(&d);
+        let p = PackedConv::new(&c, Activation::Relu6).unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        // Rows of 9 pixels, 6 of them the image's: the strided view goes the padded way.
+        let data: Vec<f32> = (0..4 * 9 * 5)
+            .map(|_| rng.random_range(-8.0..8.0))
+            .collect();
+        for (w, stride) in [(9, 9), (6, 9)] {
+            let x = NhwcView {
+                h: 4,
+                w,
+                c: 5,
+                stride,
+                data: &data,
+            };
+            let mut scratch = Scratch::default();
+            let via_scratch = p.forward_view(x, &mut scratch).unwrap().to_owned();
+            assert_eq!(
+                p.forward(&x).unwrap(),
+                via_scratch,
+                "width {w}, stride {stride}"
+            );
+        }
+        let empty = NhwcView {
+            h: 0,
+            w: 3,
+            c: 5,
+            stride: 3,
+            data: &[],
+        };
+        assert!(matches!(p.forward(&empty), Err(PackError::Size { .. })));
     }
 
     #[test]

@@ -18,7 +18,7 @@
 use super::backend::is_cpu;
 use super::conv::{OpImpl, op_impl};
 use super::nhwc::{simd_fn, sum_lanes};
-use super::pool_kernel::{tensor, values};
+use super::pool_kernel::{read, tensor, values};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -352,10 +352,16 @@ fn backward<B: Backend>(
     grad: FloatTensor<B>,
 ) -> [FloatTensor<B>; 3] {
     let device = x.device();
-    let (x, shape, dtype) = values::<B>(x);
-    let (gamma, _, p_dtype) = values::<B>(gamma);
-    let (mean, _, _) = values::<B>(mean);
-    let (var, _, _) = values::<B>(var);
+    let (x, shape, dtype) = read::<B>(x);
+    let (gamma, _, p_dtype) = read::<B>(gamma);
+    let (mean, _, _) = read::<B>(mean);
+    let (var, _, _) = read::<B>(var);
+    let (x, gamma, mean, var) = (
+        x.as_slice(),
+        gamma.as_slice(),
+        mean.as_slice(),
+        var.as_slice(),
+    );
     let (mut g, _, _) = values::<B>(grad);
     let (n, c, plane) = layout(&shape);
     let count = (n * plane).max(1) as f64;

@@ -24,7 +24,7 @@
 
 use super::conv::add_bias;
 use super::depthwise_kernel::{ConvKernel, DepthwiseOptions, Geometry, autodiff_conv, kernel_fits};
-use super::pool_kernel::{tensor, values};
+use super::pool_kernel::{read, tensor};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::tensor::FloatTensor;
@@ -305,8 +305,9 @@ fn forward<B: Backend>(
     options: DepthwiseOptions,
 ) -> FloatTensor<B> {
     let device = x.device();
-    let (x, shape, dtype) = values::<B>(x);
-    let (wt, wshape, _) = values::<B>(weight);
+    let (x, shape, dtype) = read::<B>(x);
+    let (wt, wshape, _) = read::<B>(weight);
+    let (x, wt) = (x.as_slice(), wt.as_slice());
     let plan = Plan::new(&shape, &wshape, &options);
     let (n, oc, k) = (shape[0], plan.oc, plan.k);
     let (plane, oplane) = (plan.c * plan.g.h * plan.g.w, plan.g.oh * plan.g.ow);
@@ -351,9 +352,10 @@ fn backward<B: Backend>(
     [want_x, want_w]: [bool; 2],
 ) -> (Option<FloatTensor<B>>, Option<FloatTensor<B>>) {
     let device = x.device();
-    let (x, shape, x_dtype) = values::<B>(x);
-    let (wt, wshape, w_dtype) = values::<B>(weight);
-    let (grad, _, _) = values::<B>(grad);
+    let (x, shape, x_dtype) = read::<B>(x);
+    let (wt, wshape, w_dtype) = read::<B>(weight);
+    let (grad, _, _) = read::<B>(grad);
+    let (x, wt, grad) = (x.as_slice(), wt.as_slice(), grad.as_slice());
     let plan = Plan::new(&shape, &wshape, &options);
     let (n, oc, k, ow) = (shape[0], plan.oc, plan.k, plan.g.ow);
     let (plane, oplane) = (plan.c * plan.g.h * plan.g.w, plan.g.oh * ow);

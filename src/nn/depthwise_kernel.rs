@@ -17,7 +17,7 @@
 
 use super::conv::{add_bias, out_size};
 use super::nhwc::{dot_lanes, simd_fn};
-use super::pool_kernel::{tensor, values};
+use super::pool_kernel::{read, tensor};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -392,8 +392,9 @@ fn forward<B: Backend>(
     options: DepthwiseOptions,
 ) -> FloatTensor<B> {
     let device = x.device();
-    let (x, shape, dtype) = values::<B>(x);
-    let (wt, wshape, _) = values::<B>(weight);
+    let (x, shape, dtype) = read::<B>(x);
+    let (wt, wshape, _) = read::<B>(weight);
+    let (x, wt) = (x.as_slice(), wt.as_slice());
     let g = Geometry::new(&shape, &wshape, &options);
     let (n, c) = (shape[0], shape[1]);
     let (plane, oplane, taps) = (g.h * g.w, g.oh * g.ow, g.kh * g.kw);
@@ -421,9 +422,10 @@ fn backward<B: Backend>(
     want_x: bool,
 ) -> (Option<FloatTensor<B>>, FloatTensor<B>) {
     let device = x.device();
-    let (x, shape, x_dtype) = values::<B>(x);
-    let (wt, wshape, w_dtype) = values::<B>(weight);
-    let (grad, _, _) = values::<B>(grad);
+    let (x, shape, x_dtype) = read::<B>(x);
+    let (wt, wshape, w_dtype) = read::<B>(weight);
+    let (grad, _, _) = read::<B>(grad);
+    let (x, wt, grad) = (x.as_slice(), wt.as_slice(), grad.as_slice());
     let g = Geometry::new(&shape, &wshape, &options);
     let (n, c) = (shape[0], shape[1]);
     let (plane, oplane, taps) = (g.h * g.w, g.oh * g.ow, g.kh * g.kw);

@@ -19,7 +19,7 @@
 
 use super::backend::is_cpu;
 use super::conv::{OpImpl, op_impl};
-use super::pool_kernel::{tensor, values};
+use super::pool_kernel::{read, tensor, values};
 use burn::backend::autodiff::Autodiff;
 use burn::backend::autodiff::checkpoint::{base::Checkpointer, strategy::CheckpointStrategy};
 use burn::backend::autodiff::grads::Gradients;
@@ -112,7 +112,8 @@ fn forward<B: Backend>(x: FloatTensor<B>, alpha: f32) -> FloatTensor<B> {
 fn backward<B: Backend>(grad: FloatTensor<B>, out: FloatTensor<B>, alpha: f32) -> FloatTensor<B> {
     let device = grad.device();
     let (mut g, shape, dtype) = values::<B>(grad);
-    let (y, _, _) = values::<B>(out);
+    let (y, _, _) = read::<B>(out);
+    let y = y.as_slice();
     g.par_chunks_mut(CHUNK)
         .zip(y.par_chunks(CHUNK))
         .for_each(|(g, y)| {

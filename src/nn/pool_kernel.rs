@@ -120,6 +120,50 @@ pub(super) fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DT
     (v, shape, dtype)
 }
 
+/// A tensor's `f32` values for a kernel that only reads them: borrowed from the tensor's own
+/// buffer where it is a contiguous `f32` tensor of burn-flex or burn-ndarray (no copy), as
+/// [`values`] gives them otherwise.
+pub(super) enum Values<B: Backend> {
+    /// The tensor itself, whose buffer [`borrowed`] reads.
+    Borrowed(FloatTensor<B>),
+    /// A copy (or the moved buffer).
+    Owned(Vec<f32>),
+}
+
+impl<B: Backend> Values<B> {
+    /// The values, row-major.
+    pub(super) fn as_slice(&self) -> &[f32] {
+        match self {
+            Self::Borrowed(t) => borrowed(t).unwrap_or_default(),
+            Self::Owned(v) => v,
+        }
+    }
+}
+
+/// [`Values`] of `t`, its shape and its dtype.
+pub(super) fn read<B: Backend>(t: FloatTensor<B>) -> (Values<B>, Vec<usize>, DType) {
+    if borrowed(&t).is_some() {
+        let (shape, dtype) = (t.shape().to_vec(), t.dtype());
+        return (Values::Borrowed(t), shape, dtype);
+    }
+    let (v, shape, dtype) = values::<B>(t);
+    (Values::Owned(v), shape, dtype)
+}
+
+/// The buffer of a contiguous `f32` burn-flex or burn-ndarray tensor; `None` for anything else.
+fn borrowed<T: 'static>(t: &T) -> Option<&[f32]> {
+    use burn::backend::flex::FlexTensor;
+    use burn::backend::ndarray::NdArrayTensor;
+    let any = t as &dyn std::any::Any;
+    if let Some(t) = any.downcast_ref::<FlexTensor>() {
+        return t.as_slice::<f32>();
+    }
+    match any.downcast_ref::<NdArrayTensor>()? {
+        NdArrayTensor::F32(storage) => storage.view().to_slice(),
+        _ => None,
+    }
+}
+
 /// A copy of a contiguous `f32` burn-ndarray tensor whose buffer is shared (kept for a
 /// backward pass or by another op). burn-ndarray 0.22.1's `into_data` moves a buffer it owns
 /// alone but reads a shared one element by element through a dynamic-rank iterator: a fifth
@@ -148,7 +192,8 @@ pub(super) fn tensor<B: Backend>(
 /// The pooled tensor and the winning tap of every output (`dy · k + dx` in its window).
 fn forward<B: Backend>(x: FloatTensor<B>, k: usize) -> (FloatTensor<B>, Vec<u8>) {
     let device = x.device();
-    let (x, shape, dtype) = values::<B>(x);
+    let (x, shape, dtype) = read::<B>(x);
+    let x = x.as_slice();
     let [h, w] = [shape[2], shape[3]];
     let plane = h * w;
     let mut out = vec![0.0f32; x.len()];

@@ -134,6 +134,7 @@ impl<B: Backend> Values<B> {
     /// The values, row-major.
     pub(super) fn as_slice(&self) -> &[f32] {
         match self {
+            // `read` made it only where `borrowed` gives the buffer, and tensors do not change.
             Self::Borrowed(t) => borrowed(t).unwrap_or_default(),
             Self::Owned(v) => v,
         }

@@ -109,7 +109,7 @@ pub(super) fn ready<T>(future: impl std::future::Future<Output = T>) -> T {
 pub(super) fn values<B: Backend>(t: FloatTensor<B>) -> (Vec<f32>, Vec<usize>, DType) {
     let shape = t.shape().to_vec();
     let dtype = t.dtype();
-    if let Some(v) = shared_ndarray_values(&t) {
+    if let Some(v) = shared_values(&t) {
         return (v, shape, dtype);
     }
     let data = ready(B::float_into_data(t)).expect("a CPU tensor reads back");
@@ -165,20 +165,27 @@ fn borrowed<T: 'static>(t: &T) -> Option<&[f32]> {
     }
 }
 
-/// A copy of a contiguous `f32` burn-ndarray tensor whose buffer is shared (kept for a
-/// backward pass or by another op). burn-ndarray 0.22.1's `into_data` moves a buffer it owns
-/// alone but reads a shared one element by element through a dynamic-rank iterator: a fifth
-/// of SDFCNN's train step on ndarray (`perf`). `None` for anything else.
-fn shared_ndarray_values<T: 'static>(t: &T) -> Option<Vec<f32>> {
+/// A copy of a contiguous `f32` burn-flex or burn-ndarray tensor whose buffer is shared (kept
+/// for a backward pass or by another op), taken from [`borrowed`]'s slice. burn-ndarray
+/// 0.22.1's `into_data` moves a buffer it owns alone but reads a shared one element by element
+/// through a dynamic-rank iterator: a fifth of SDFCNN's train step on ndarray (`perf`).
+/// `None` for a buffer the tensor owns alone (`into_data` moves it) and for anything else.
+fn shared_values<T: 'static>(t: &T) -> Option<Vec<f32>> {
+    use burn::backend::flex::FlexTensor;
     use burn::backend::ndarray::NdArrayTensor;
-    let NdArrayTensor::F32(storage) = (t as &dyn std::any::Any).downcast_ref::<NdArrayTensor>()?
-    else {
-        return None;
+    let any = t as &dyn std::any::Any;
+    let unique = match (
+        any.downcast_ref::<FlexTensor>(),
+        any.downcast_ref::<NdArrayTensor>(),
+    ) {
+        (Some(t), _) => t.is_unique(),
+        (_, Some(NdArrayTensor::F32(storage))) => storage.is_unique(),
+        _ => return None,
     };
-    if storage.is_unique() {
+    if unique {
         return None;
     }
-    storage.view().as_slice().map(<[f32]>::to_vec)
+    borrowed(t).map(<[f32]>::to_vec)
 }
 
 pub(super) fn tensor<B: Backend>(

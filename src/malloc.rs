@@ -9,24 +9,44 @@
 //! (~200 K faults, about 30 % less CPU time for the same step). The cost is that freed memory
 //! stays mapped in the process, up to its peak use.
 //!
-//! Binaries that run the networks call [`tune_for_tensors`] first. An explicit
-//! `MALLOC_MMAP_THRESHOLD_`, `MALLOC_TRIM_THRESHOLD_` or `GLIBC_TUNABLES` in the environment
-//! wins (nothing is changed). Other C libraries and platforms are left alone.
+//! That was not enough where several threads allocate: glibc gives a thread that finds the
+//! main arena busy an arena of its own, carved from mmap'd heaps of at most 64 MiB, and the
+//! thresholds did not keep those from faulting pages in again. On a 2-core Intel VM
+//! (2026-12-07) the ndarray SDFCNN train step still spent 2.3-4.8 s of system time in six
+//! steps, most of it clearing pages (`clear_page_erms`, 16 % of a `perf` profile). With one arena for the whole process (`M_ARENA_MAX` = 1) it spent
+//! 1.2-1.6 s, its median step went from 1853, 1872, 1987 ms to 1565, 1822, 1461 ms
+//! (alternating, three pairs), flex's step and `slam`'s frames/s did not move
+//! (`lab/notes/cpu-speed.md`). Tensor work makes few, large allocations, so the one lock is
+//! not contended.
+//!
+//! Binaries that run the networks call [`tune_for_tensors`] first, before they start
+//! threads. An explicit `MALLOC_MMAP_THRESHOLD_`, `MALLOC_TRIM_THRESHOLD_` or
+//! `GLIBC_TUNABLES` in the environment wins (nothing is changed), and so does an explicit
+//! `MALLOC_ARENA_MAX` (the thresholds are still raised). Other C libraries and platforms
+//! are left alone.
 
 /// The mmap and trim threshold set by [`tune_for_tensors`]: 1 GiB.
 pub(crate) const THRESHOLD: usize = 1 << 30;
 
-/// Raises glibc's mmap and trim thresholds to `THRESHOLD` unless the environment already
-/// configures them. Returns whether both were set.
+/// Raises glibc's mmap and trim thresholds to `THRESHOLD` and keeps one arena, unless the
+/// environment already configures them (see the module docs). Returns whether the
+/// thresholds were set.
 pub fn tune_for_tensors() -> bool {
+    let set = |v: &str| std::env::var_os(v).is_some();
     let configured = [
         "MALLOC_MMAP_THRESHOLD_",
         "MALLOC_TRIM_THRESHOLD_",
         "GLIBC_TUNABLES",
     ]
     .iter()
-    .any(|v| std::env::var_os(v).is_some());
-    !configured && set_thresholds()
+    .any(|v| set(v));
+    if configured {
+        return false;
+    }
+    if !set("MALLOC_ARENA_MAX") {
+        one_arena();
+    }
+    set_thresholds()
 }
 
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -45,6 +65,18 @@ fn set_thresholds() -> bool {
     false
 }
 
+/// One malloc arena for the whole process; whether glibc accepted it.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn one_arena() -> bool {
+    // SAFETY: as in `set_thresholds`.
+    unsafe { libc::mallopt(libc::M_ARENA_MAX, 1) == 1 }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn one_arena() -> bool {
+    false
+}
+
 #[cfg(test)]
 mod tests {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
@@ -53,5 +85,6 @@ mod tests {
         // Only the return value is checked: the tuning stays in effect for the test process,
         // which is harmless.
         assert!(super::set_thresholds());
+        assert!(super::one_arena());
     }
 }

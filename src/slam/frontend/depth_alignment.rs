@@ -13,7 +13,6 @@ use crate::slam::backend::pose_graph::se3_exp;
 use crate::slam::config::DenseConfig;
 use crate::slam::map::ViewBounds;
 use nalgebra::{Matrix6, Vector2, Vector3, Vector6};
-use rayon::prelude::*;
 use std::sync::Arc;
 
 /// Whether `depth` is sampled as `rays` is (the camera's image every `rays.stride` pixels:
@@ -272,6 +271,9 @@ fn noise_weight(z: f64) -> f64 {
     r * r
 }
 
+/// Points summed apart in [`normal_equations`] (their sums are added in order).
+const CHUNK: usize = 4096;
+
 /// One Gauss-Newton step's system from [`normal_equations`].
 struct NormalEquations {
     h: Matrix6<f64>,
@@ -333,9 +335,13 @@ fn huber_weight(r: f64, wn: f64, huber: f64) -> f64 {
 /// `JᵀWJ`, `JᵀWr`, the pair count and the sum of squared distances of one Gauss-Newton step
 /// for a left perturbation `δ = (v, ω)` of `pose`: `r = n·(p − q)`, `∂r/∂δ = (n, p × n)`;
 /// with `noise_weighting` each pair is weighted by [`noise_weight`] at the model point's
-/// depth, and Huber's threshold applies to the residual so whitened. Chunks of points are
-/// summed in parallel and their sums added in order, so the result does not depend on the
-/// thread count.
+/// depth, and Huber's threshold applies to the residual so whitened. Chunks of [`CHUNK`]
+/// points are summed apart and their sums added in order.
+///
+/// On the calling thread: a frame's alignment is a few milliseconds, and splitting it over
+/// the global pool made it slower, not faster. On 80 TUM frames with both cores free, one
+/// alignment took 12.2 ms split and 10.9 ms on one thread; in `slam` the pool's threads are
+/// the other stages' (`lab/notes/cpu-speed.md`, 2026-12-07 evening).
 fn normal_equations(
     model: &DepthModel,
     source: &[Vector3<f64>],
@@ -402,19 +408,21 @@ fn normal_equations(
             sq,
         }
     };
-    let parts: Vec<_> = source.par_chunks(4096).map(chunk).collect();
     let empty = NormalEquations {
         h: Matrix6::zeros(),
         g: Vector6::zeros(),
         pairs: 0,
         sq: 0.0,
     };
-    parts.into_iter().fold(empty, |a, b| NormalEquations {
-        h: a.h + b.h,
-        g: a.g + b.g,
-        pairs: a.pairs + b.pairs,
-        sq: a.sq + b.sq,
-    })
+    source
+        .chunks(CHUNK)
+        .map(chunk)
+        .fold(empty, |a, b| NormalEquations {
+            h: a.h + b.h,
+            g: a.g + b.g,
+            pairs: a.pairs + b.pairs,
+            sq: a.sq + b.sq,
+        })
 }
 
 #[cfg(test)]

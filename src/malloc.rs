@@ -11,13 +11,11 @@
 //!
 //! That was not enough where several threads allocate: glibc gives a thread that finds the
 //! main arena busy an arena of its own, carved from mmap'd heaps of at most 64 MiB, and the
-//! thresholds did not keep those from faulting pages in again. On a 2-core Intel VM
-//! (2026-12-07) the ndarray SDFCNN train step still spent 2.3-4.8 s of system time in six
-//! steps, most of it clearing pages (`clear_page_erms`, 16 % of a `perf` profile). With one arena for the whole process (`M_ARENA_MAX` = 1) it spent
-//! 1.2-1.6 s, its median step went from 1853, 1872, 1987 ms to 1565, 1822, 1461 ms
-//! (alternating, three pairs), flex's step and `slam`'s frames/s did not move
-//! (`lab/notes/cpu-speed.md`). Tensor work makes few, large allocations, so the one lock is
-//! not contended.
+//! thresholds did not keep those from faulting pages in again (the ndarray SDFCNN train step
+//! on a 2-core Intel VM: 16 % of a `perf` profile clearing fresh pages). One arena for the
+//! whole process (`M_ARENA_MAX` = 1) took that step's system time from 2.3-4.8 s to 1.2-1.6 s
+//! over six steps; flex's step and `slam`'s frames/s did not move (`lab/notes/cpu-speed.md`,
+//! 2026-12-07).
 //!
 //! Binaries that run the networks call [`tune_for_tensors`] first, before they start
 //! threads. An explicit `MALLOC_MMAP_THRESHOLD_`, `MALLOC_TRIM_THRESHOLD_` or

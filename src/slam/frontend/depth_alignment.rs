@@ -336,12 +336,12 @@ fn huber_weight(r: f64, wn: f64, huber: f64) -> f64 {
 /// for a left perturbation `δ = (v, ω)` of `pose`: `r = n·(p − q)`, `∂r/∂δ = (n, p × n)`;
 /// with `noise_weighting` each pair is weighted by [`noise_weight`] at the model point's
 /// depth, and Huber's threshold applies to the residual so whitened. Chunks of [`CHUNK`]
-/// points are summed apart and their sums added in order.
+/// points are summed apart and their sums added in order: the sums the earlier parallel
+/// version gave, bit for bit.
 ///
-/// On the calling thread: a frame's alignment is a few milliseconds, and splitting it over
-/// the global pool made it slower, not faster. On 80 TUM frames with both cores free, one
-/// alignment took 12.2 ms split and 10.9 ms on one thread; in `slam` the pool's threads are
-/// the other stages' (`lab/notes/cpu-speed.md`, 2026-12-07 evening).
+/// On the calling thread: in `slam` the global pool's threads are the other stages', and
+/// tracking's stage time went down when the split over them went (`lab/notes/cpu-speed.md`,
+/// 2026-12-07 evening).
 fn normal_equations(
     model: &DepthModel,
     source: &[Vector3<f64>],

@@ -2,6 +2,8 @@
 //! (horizontal flip, scale + crop, colour jitter), producing network-ready
 //! planar arrays. Depth and labels are resampled with nearest neighbour so that
 //! no label is blended and missing depth (0) never leaks into valid pixels.
+//! A zoom below 1 shrinks the whole image into a larger canvas (at a random place):
+//! the canvas around it is [`PAD_RGB`], missing depth and void labels, so no loss sees it.
 //! Depth stays in metres; the zoom is returned with the sample ([`SegDepthSample::zoom`])
 //! because zooming lengthens the focal length, which SDFCNN's canonical camera
 //! ([`crate::sdfcnn::focal`]) accounts for.
@@ -18,7 +20,8 @@ use serde::{Deserialize, Serialize};
 pub struct AugmentConfig {
     /// Mirror the sample horizontally with probability 1/2.
     pub flip: bool,
-    /// Random zoom factor range before cropping to the output size.
+    /// Random zoom factor range before cropping to the output size; below 1 the image is
+    /// shrunk into a padded canvas (a shorter focal length: larger canonical depths).
     pub scale_min: f32,
     /// Upper end of the random zoom range; equal to `scale_min` gives a fixed zoom.
     pub scale_max: f32,
@@ -117,16 +120,19 @@ pub fn augment(
         cfg.scale_min.max(1e-3)
     };
     let (cw, ch) = (sw / scale, sh / scale);
-    let x0 = if sw > cw {
-        rng.random_range(0.0..(sw - cw))
-    } else {
-        0.0
+    // The window's corner: inside the image when zooming in, a random place of the image
+    // inside the larger window when zooming out.
+    let corner = |source: f32, window: f32, rng: &mut dyn rand::Rng| {
+        if source > window {
+            rng.random_range(0.0..(source - window))
+        } else if window > source {
+            -rng.random_range(0.0..(window - source))
+        } else {
+            0.0
+        }
     };
-    let y0 = if sh > ch {
-        rng.random_range(0.0..(sh - ch))
-    } else {
-        0.0
-    };
+    let x0 = corner(sw, cw, rng);
+    let y0 = corner(sh, ch, rng);
     let flip = cfg.flip && rng.random_bool(0.5);
     let jitter = |r: f32, rng: &mut dyn rand::Rng| {
         if r > 0.0 {
@@ -152,14 +158,21 @@ pub fn augment(
     };
     let (fx, fy) = (cw / width as f32, ch / height as f32);
     let mut mean = 0.0f32;
+    let mut inside = 0usize;
+    let mut padded = Vec::new();
     for y in 0..height {
         for x in 0..width {
             let xo = if flip { width - 1 - x } else { x };
             // Source position of the output pixel centre.
             let u = x0 + (xo as f32 + 0.5) * fx - 0.5;
             let v = y0 + (y as f32 + 0.5) * fy - 0.5;
-            let px = bilinear_rgb(rgb, u, v);
             let i = y * width + x;
+            if !(-0.5..sw - 0.5).contains(&u) || !(-0.5..sh - 0.5).contains(&v) {
+                padded.push(i);
+                continue;
+            }
+            inside += 1;
+            let px = bilinear_rgb(rgb, u, v);
             let (ui, vi) = (
                 (u.round() as i64).clamp(0, sw as i64 - 1) as u32,
                 (v.round() as i64).clamp(0, sh as i64 - 1) as u32,
@@ -175,13 +188,22 @@ pub fn augment(
             mean += gray;
         }
     }
-    mean /= n.max(1) as f32;
+    mean /= inside.max(1) as f32;
     for v in out.rgb.iter_mut() {
         *v = ((*v - mean) * c + mean) * b;
         *v = v.clamp(0.0, 1.0);
     }
+    for i in padded {
+        for (k, c) in PAD_RGB.iter().enumerate() {
+            out.rgb[k * n + i] = *c;
+        }
+    }
     out
 }
+
+/// The canvas colour around a zoomed-out image: SDFCNN's input mean (eq. 15, ImageNet's), which
+/// its normalisation maps to zero (as Metric3D pads its canonical-camera images).
+pub const PAD_RGB: [f32; 3] = [0.485, 0.456, 0.406];
 
 fn bilinear_rgb(img: &RgbImage, u: f32, v: f32) -> [f32; 3] {
     let (w, h) = (img.width() as i64, img.height() as i64);
@@ -268,5 +290,37 @@ mod tests {
         let s = flipped.expect("a flip within 20 draws");
         assert_eq!((s.labels[19], s.depth[0], s.depth[19]), (3, 0.0, 1.0));
         assert!(s.rgb[0] > s.rgb[19]);
+    }
+
+    #[test]
+    fn zooming_out_pads_with_the_mean_colour_no_depth_and_void_labels() {
+        let (rgb, depth, labels) = scene();
+        let cfg = AugmentConfig {
+            scale_min: 0.5,
+            scale_max: 0.5,
+            ..AugmentConfig::none()
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let s = augment(&rgb, Some(&depth), &labels, 20, 15, &cfg, &mut rng);
+        // Half the width: a shorter focal length, which the canonical camera turns into
+        // larger depths.
+        assert_eq!(s.zoom, 0.5);
+        let n = 20 * 15;
+        let pad: Vec<usize> = (0..n).filter(|&i| s.labels[i] == VOID).collect();
+        // The image covers a quarter of the canvas (10 x 7.5 pixels of 20 x 15).
+        assert!(
+            (215..=235).contains(&pad.len()),
+            "{} padded pixels",
+            pad.len()
+        );
+        for &i in &pad {
+            assert_eq!(s.depth[i], 0.0);
+            for (k, c) in PAD_RGB.iter().enumerate() {
+                assert_eq!(s.rgb[k * n + i], *c);
+            }
+        }
+        // Inside, the image as before: both labels, the valid depth kept.
+        assert!(s.labels.contains(&3) && s.labels.contains(&7));
+        assert!(s.depth.contains(&1.0));
     }
 }

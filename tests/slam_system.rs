@@ -689,6 +689,58 @@ fn frames_between_keyframes_are_placed_by_frame_to_frame_depth() {
     assert!(ate(&on, &seq, Alignment::Se3) < 0.025);
 }
 
+/// ORB keypoints, counting the images they are detected on.
+struct CountedOrb {
+    orb: OrbSource,
+    calls: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl sdf_slam::slam::KeypointSource for CountedOrb {
+    fn name(&self) -> &'static str {
+        "orb"
+    }
+
+    fn detect(&self, gray: &image::GrayImage) -> sdf_slam::Result<sdf_slam::slam::KeyFeatures> {
+        self.calls.fetch_add(1, Ordering::SeqCst);
+        self.orb.detect(gray)
+    }
+}
+
+#[test]
+fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_detected() {
+    let seq = box_room();
+    let run = |every: bool, threads: bool| {
+        let mut cfg = config(threads);
+        cfg.tracking.keypoints_every_frame = every;
+        let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Sensor, false);
+        s.keypoints = Box::new(CountedOrb {
+            orb: OrbSource::from_config(&cfg.features),
+            calls: calls.clone(),
+        });
+        let out = s.run(quiet()).unwrap();
+        (out, calls.load(Ordering::SeqCst))
+    };
+    let ((every, every_calls), (dense, dense_calls), (threaded, threaded_calls)) =
+        (run(true, false), run(false, false), run(false, true));
+    assert_eq!((every_calls, every.tracking.without_keypoints), (24, 0));
+    // Each frame is either tracked by its depth alone or has its keypoints detected.
+    let without = dense.tracking.without_keypoints;
+    assert_eq!(dense_calls + without, 24, "{:?}", dense.tracking);
+    assert!(without >= 8, "{:?}", dense.tracking);
+    // Keyframes only where keypoints were detected; the same run on threads.
+    assert!(dense.map.keyframes.len() <= dense_calls);
+    assert_eq!(threaded_calls, dense_calls);
+    assert_eq!(threaded.trajectory().poses, dense.trajectory().poses);
+    assert!(dense.tracking.lost.is_empty(), "{:?}", dense.tracking);
+    let (e_every, e_dense) = (
+        ate(&every, &seq, Alignment::Se3),
+        ate(&dense, &seq, Alignment::Se3),
+    );
+    eprintln!("ATE {e_every:.4} m with keypoints on every frame, {e_dense:.4} m without");
+    assert!(e_dense < 0.025, "ATE {e_dense} against {e_every}");
+}
+
 #[test]
 fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
     let dir = box_room_copy("box_bad");

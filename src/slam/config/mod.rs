@@ -254,6 +254,13 @@ pub struct TrackingConfig {
     /// to its colour image's (the trajectory's stamps), along the trajectory
     /// ([`crate::slam::backend::colour_instant`]); frames whose stamps are equal do not move.
     pub colour_instant: bool,
+    /// Detect keypoints on every frame (the paper's tracking). `false` (RGB-D, `dense.enabled`):
+    /// a frame is first tracked by the dense alignment alone against its reference keyframe's
+    /// depth, from the constant-velocity pose; keypoints are detected, and the frame tracked by
+    /// them, only when that alignment fails its gates (`dense.min_inlier_fraction`,
+    /// `dense.agree_*` against the prediction) or the frame is due to become a keyframe
+    /// (`keyframes.max_*`). Monocular runs detect on every frame either way.
+    pub keypoints_every_frame: bool,
 }
 
 impl Default for TrackingConfig {
@@ -266,6 +273,7 @@ impl Default for TrackingConfig {
             reinitialise_after: 10,
             start_at_ground_truth: true,
             colour_instant: true,
+            keypoints_every_frame: true,
         }
     }
 }

@@ -159,3 +159,22 @@ fn defaults_round_trip_and_errors_name_fields() {
     };
     assert_eq!(keys(shipped), keys(&text), "configs/slam/default.toml");
 }
+
+#[test]
+fn tracking_without_keypoints_on_every_frame_needs_the_dense_alignment() {
+    let text = "[tracking]\nkeypoints_every_frame = false\n[dense]\nenabled = false\n";
+    let e = SlamConfig::parse(text, Path::new("c.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("tracking.keypoints_every_frame") && e.contains("dense.enabled"),
+        "{e}"
+    );
+    let ok = "[tracking]\nkeypoints_every_frame = false\n";
+    assert!(
+        !SlamConfig::parse(ok, Path::new("c.toml"))
+            .unwrap()
+            .tracking
+            .keypoints_every_frame
+    );
+}

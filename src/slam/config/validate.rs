@@ -167,6 +167,13 @@ impl SlamConfig {
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
         }
+        if !self.tracking.keypoints_every_frame && !self.dense.enabled {
+            return Err(
+                "tracking.keypoints_every_frame = false tracks frames by the dense alignment: it \
+                 needs dense.enabled = true"
+                    .into(),
+            );
+        }
         Ok(())
     }
 

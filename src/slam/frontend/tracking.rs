@@ -151,6 +151,9 @@ struct TrackedKeyframe {
 struct LastFrame {
     index: usize,
     pose: Pose,
+    /// The frame whose keypoints `features` are: `index`, or an earlier frame when the
+    /// frames since were lost or tracked without keypoints.
+    detected: usize,
     features: KeyFeatures,
     world: Vec<Option<Point3<f64>>>,
 }
@@ -176,6 +179,10 @@ pub struct TrackingCounters {
     /// `dense.frame_graph`: frames whose alignment to the previous frame was kept.
     #[serde(default)]
     pub frame_steps: usize,
+    /// `tracking.keypoints_every_frame = false`: frames tracked by the dense alignment alone,
+    /// with no keypoints detected.
+    #[serde(default)]
+    pub without_keypoints: usize,
 }
 
 /// `dense.frame_graph`: a frame's depth is kept every this many pixels as the next frame's
@@ -260,7 +267,7 @@ impl Tracker {
         };
         kf.data = data;
         if let Some(last) = &mut self.last
-            && last.index == kf.frame_index
+            && last.detected == kf.frame_index
         {
             last.world = kf
                 .data
@@ -269,6 +276,86 @@ impl Tracker {
                 .map(|p| p.map(|p| kf.pose * p))
                 .collect();
         }
+    }
+
+    /// Whether every frame needs its keypoints before it is tracked (else they are detected
+    /// only when [`Self::track_without_keypoints`] declines the frame).
+    pub fn needs_keypoints_every_frame(&self) -> bool {
+        self.cfg.tracking.keypoints_every_frame || self.monocular || !self.cfg.dense.enabled
+    }
+
+    /// `tracking.keypoints_every_frame = false` (RGB-D): tracks a frame by the dense alignment
+    /// alone against its reference keyframe's depth, from the constant-velocity pose, when that
+    /// is enough: the alignment passes the refinement's gates against the prediction
+    /// (`dense.min_inlier_fraction`, `dense.agree_*`) and the frame is not due to become a
+    /// keyframe (`keyframes.max_*`). `None`: the frame needs its keypoints ([`Self::track`]).
+    pub fn track_without_keypoints(
+        &mut self,
+        index: usize,
+        stamp: f64,
+        depth: Option<&DepthImage>,
+    ) -> Option<TrackOutput> {
+        if self.needs_keypoints_every_frame() {
+            return None;
+        }
+        let cfg = &self.cfg;
+        let depth = depth?;
+        let reference = self.reference?;
+        let last = self.last.as_ref()?;
+        let (id, model) = self.dense_model.as_ref()?;
+        if *id != reference || self.lost_streak > 0 {
+            return None;
+        }
+        let gap = index.saturating_sub(last.index).max(1);
+        let mut predicted = last.pose;
+        for _ in 0..gap {
+            predicted = renormalized(&(predicted * self.velocity));
+        }
+        let kf = &self.keyframes[reference];
+        let initial = kf.pose.inverse() * predicted;
+        let since = align(model, depth, &initial, self.depth_range(), &cfg.dense)
+            .filter(|a| a.passes_frame_gates(&initial, &cfg.dense))
+            .map(|a| renormalized(&a.pose))?;
+        let rules = &cfg.keyframes;
+        let frames_since = index.saturating_sub(kf.frame_index);
+        let due = since.translation.vector.norm() > rules.max_translation
+            || since.rotation.angle().to_degrees() > rules.max_rotation_deg
+            || (rules.max_frames > 0 && frames_since >= rules.max_frames);
+        if due {
+            return None;
+        }
+        let pose = renormalized(&(kf.pose * since));
+        self.velocity = renormalized(&(last.pose.inverse() * pose));
+        self.counters.dense_kept += 1;
+        self.counters.without_keypoints += 1;
+        // The last frame with keypoints stays the previous frame to match against (its
+        // points are in the world frame); only the pose and index move on.
+        if let Some(last) = &mut self.last {
+            last.pose = pose;
+            last.index = index;
+        }
+        let mut record = FrameRecord {
+            index,
+            stamp,
+            status: FrameStatus::Tracked,
+            keyframe: None,
+            reference: Some(reference),
+            relative: since,
+            odom_pose: pose,
+            inliers: 0,
+            correspondences: 0,
+            observations: Vec::new(),
+            dense: true,
+            step: None,
+        };
+        if self.cfg.dense.frame_graph {
+            self.frame_step(&mut record, Some(depth));
+        }
+        Some(TrackOutput {
+            record,
+            keyframe: None,
+            events: Vec::new(),
+        })
     }
 
     /// Tracks one frame.
@@ -428,6 +515,7 @@ impl Tracker {
         self.last = Some(LastFrame {
             index: input.index,
             pose,
+            detected: input.index,
             features: input.features,
             world,
         });
@@ -537,6 +625,7 @@ impl Tracker {
         self.last = Some(LastFrame {
             index: input.index,
             pose,
+            detected: input.index,
             features: input.features,
             world,
         });
@@ -650,7 +739,7 @@ impl Tracker {
         let prev = self
             .last
             .as_ref()
-            .filter(|l| self.cfg.tracking.match_previous_frame && l.index != kf.frame_index);
+            .filter(|l| self.cfg.tracking.match_previous_frame && l.detected != kf.frame_index);
         if let Some(l) = prev {
             sources.push(Source {
                 features: &l.features,

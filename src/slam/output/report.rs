@@ -129,6 +129,10 @@ pub struct TrackingReport {
     /// RGB-D: frames where the dense refinement's pose was not kept.
     #[serde(default)]
     pub dense_rejected: usize,
+    /// `tracking.keypoints_every_frame = false`: frames tracked by the dense alignment alone,
+    /// with no keypoints detected (counted in `dense_kept` too).
+    #[serde(default)]
+    pub without_keypoints: usize,
     /// `tracking.colour_instant`: frames whose pose was moved from their depth image's
     /// instant to their colour image's.
     #[serde(default)]
@@ -285,6 +289,7 @@ impl Report {
                 reinitialised_frames: t.reinitialised.clone(),
                 dense_kept: t.dense_kept,
                 dense_rejected: t.dense_rejected,
+                without_keypoints: t.without_keypoints,
                 colour_instant: out.colour_instant,
             },
             wall_seconds: out.wall_seconds,
@@ -428,6 +433,13 @@ impl Report {
                 s,
                 "| dense refinement | kept for {} frames, not kept for {} |",
                 self.tracking.dense_kept, self.tracking.dense_rejected
+            );
+        }
+        if self.tracking.without_keypoints > 0 {
+            let _ = writeln!(
+                s,
+                "| tracked without keypoints (dense alignment alone) | {} frames |",
+                self.tracking.without_keypoints
             );
         }
         if self.tracking.colour_instant > 0 {
@@ -695,6 +707,13 @@ impl Report {
                 s,
                 "dense refinement kept for {} frames, not kept for {}",
                 self.tracking.dense_kept, self.tracking.dense_rejected
+            );
+        }
+        if self.tracking.without_keypoints > 0 {
+            let _ = writeln!(
+                s,
+                "| tracked without keypoints (dense alignment alone) | {} frames |",
+                self.tracking.without_keypoints
             );
         }
         if self.tracking.colour_instant > 0 {

@@ -76,25 +76,28 @@ pub(super) struct TrackingRun {
     pub(super) repeats: RepeatCounts,
 }
 
-/// A frame loaded and its keypoints detected (or why not), with the time each took.
+/// A frame loaded and its keypoints detected (or why not; `None`: left to tracking), with
+/// the time each took.
 struct Prepared {
-    frame: Result<(Loaded, Result<KeyFeatures>)>,
+    frame: Result<(Loaded, Option<Result<KeyFeatures>>)>,
     load: Duration,
     detect: Duration,
 }
 
+/// Loads frame `i` and, with `detect`, its keypoints.
 fn prepare(
     seq: &TumSequence,
     i: usize,
     monocular: bool,
     keypoints: &dyn KeypointSource,
+    detect: bool,
 ) -> Prepared {
     let t = Instant::now();
     let frame = load(seq, i, monocular);
     let load = t.elapsed();
     let t = Instant::now();
     let frame = frame.map(|f| {
-        let features = keypoints.detect(&rgb_to_gray(&f.rgb));
+        let features = detect.then(|| keypoints.detect(&rgb_to_gray(&f.rgb)));
         (f, features)
     });
     Prepared {
@@ -110,7 +113,10 @@ fn prepare(
 /// many threads ahead of tracking ([`crate::slam::frontend::prefetch`]); with 0, on this thread before each
 /// is tracked. Either way each frame is tracked with the same features (the real sequences
 /// of the README give byte-identical trajectories). With workers, the `load` and `features`
-/// times are each worker's, summed: they overlap tracking and each other.
+/// times are each worker's, summed: they overlap tracking and each other. With
+/// `tracking.keypoints_every_frame = false` (RGB-D) keypoints are detected on this thread, and
+/// only for the frames the dense alignment alone cannot track
+/// ([`Tracker::track_without_keypoints`]).
 pub(super) fn tracking_loop(
     frames: &Frames,
     tracker: Tracker,
@@ -138,6 +144,7 @@ pub(super) fn tracking_loop(
         interrupted: false,
         repeats: RepeatCounts::default(),
     };
+    let detect = run.tracker.needs_keypoints_every_frame();
     // The last loaded frame's index and image hashes.
     let mut previous: Option<(usize, ImageKeys)> = None;
     let mut track = |i: usize, p: Prepared| -> bool {
@@ -158,27 +165,53 @@ pub(super) fn tracking_loop(
             }
         };
         run.load.add_duration(p.load);
-        let features = features.unwrap_or_else(|e| {
-            log(&format!(
-                "warning: frame {i}: keypoints failed ({e}); no features"
-            ));
-            Default::default()
-        });
-        run.features.add_duration(p.detect);
         let before = previous.filter(|(j, _)| j + 1 == i).map(|(_, k)| k);
         let repeats = frame.keys.repeats(before.as_ref());
         previous = Some((i, frame.keys));
         run.repeats.add(repeats);
         let tracker = &mut run.tracker;
+        // The dense alignment's try and the tracking by keypoints count as tracking, a
+        // detection here as features.
         let t = Instant::now();
-        let out = tracker.track(TrackInput {
-            index: i,
-            stamp: frame.stamp,
-            features,
-            depth: frame.depth.as_ref(),
-            gt_pose: frame.gt,
-        });
-        run.tracking.add(t);
+        let without = match features {
+            Some(_) => None,
+            None => tracker.track_without_keypoints(i, frame.stamp, frame.depth.as_ref()),
+        };
+        let mut tracking = t.elapsed();
+        let out = match without {
+            Some(out) => out,
+            None => {
+                let features = match features {
+                    Some(f) => {
+                        run.features.add_duration(p.detect);
+                        f
+                    }
+                    None => {
+                        let t = Instant::now();
+                        let f = keypoints.detect(&rgb_to_gray(&frame.rgb));
+                        run.features.add(t);
+                        f
+                    }
+                };
+                let features = features.unwrap_or_else(|e| {
+                    log(&format!(
+                        "warning: frame {i}: keypoints failed ({e}); no features"
+                    ));
+                    Default::default()
+                });
+                let t = Instant::now();
+                let out = tracker.track(TrackInput {
+                    index: i,
+                    stamp: frame.stamp,
+                    features,
+                    depth: frame.depth.as_ref(),
+                    gt_pose: frame.gt,
+                });
+                tracking += t.elapsed();
+                out
+            }
+        };
+        run.tracking.add_duration(tracking);
         for e in &out.events {
             log(e);
         }
@@ -203,7 +236,7 @@ pub(super) fn tracking_loop(
         run.frames.push(out.record);
         true
     };
-    let produce = |i: usize| prepare(seq, i, monocular, keypoints);
+    let produce = |i: usize| prepare(seq, i, monocular, keypoints, detect);
     let mut stopped = false;
     if workers == 0 {
         for i in 0..n {

@@ -19,15 +19,20 @@ BACKEND=${BACKEND:-flex}
 REPEAT=${REPEAT:-2}
 mkdir -p "$OUT"
 
-# rung name | slam flags | fpfdcnn_input_scale (empty: ORB keypoints)
+# rung name | slam flags | fpfdcnn_input_scale (empty: ORB keypoints) | other keys of the
+# config changed (sed expressions on configs/slam/default.toml)
+keyframes_only='s/^keypoints_every_frame = .*/keypoints_every_frame = false/'
 rungs=(
-    "FPFDCNN + SDFCNN labels (default)|--features fpfdcnn --labels sdfcnn|1.0"
-    "FPFDCNN, no labels|--features fpfdcnn --labels none|1.0"
-    "FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75"
-    "FPFDCNN at 0.75 scale, no labels|--features fpfdcnn --labels none|0.75"
-    "FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5"
-    "ORB + SDFCNN labels|--features orb --labels sdfcnn|"
-    "ORB, no labels|--features orb --labels none|"
+    "FPFDCNN + SDFCNN labels (default)|--features fpfdcnn --labels sdfcnn|1.0|"
+    "FPFDCNN, no labels|--features fpfdcnn --labels none|1.0|"
+    "FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75|"
+    "FPFDCNN at 0.75 scale, no labels|--features fpfdcnn --labels none|0.75|"
+    "FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5|"
+    "FPFDCNN where the depth cannot track, keyframes <= 4 frames apart + labels|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only; s/^max_frames = .*/max_frames = 4/"
+    "FPFDCNN where the depth cannot track + labels|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only"
+    "FPFDCNN where the depth cannot track, no labels|--features fpfdcnn --labels none|1.0|$keyframes_only"
+    "ORB + SDFCNN labels|--features orb --labels sdfcnn||"
+    "ORB, no labels|--features orb --labels none||"
 )
 
 field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }
@@ -38,9 +43,10 @@ table=$OUT/ladder.md
     echo "|---|---|---|---|"
 } > "$table"
 for k in "${!rungs[@]}"; do
-    IFS='|' read -r name flags scale <<< "${rungs[$k]}"
+    IFS='|' read -r name flags scale edits <<< "${rungs[$k]}"
     cfg=$OUT/rung_$k.toml
-    sed "s/^fpfdcnn_input_scale = .*/fpfdcnn_input_scale = ${scale:-1.0}/" configs/slam/default.toml > "$cfg"
+    sed "s/^fpfdcnn_input_scale = .*/fpfdcnn_input_scale = ${scale:-1.0}/; ${edits}" \
+        configs/slam/default.toml > "$cfg"
     best_fps=0
     for r in $(seq "$REPEAT"); do
         # shellcheck disable=SC2086

@@ -712,7 +712,7 @@ impl Report {
         if self.tracking.without_keypoints > 0 {
             let _ = writeln!(
                 s,
-                "| tracked without keypoints (dense alignment alone) | {} frames |",
+                "tracked without keypoints (dense alignment alone): {} frames",
                 self.tracking.without_keypoints
             );
         }

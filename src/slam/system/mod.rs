@@ -281,12 +281,14 @@ impl Slam {
             max_frames,
         } = self;
         let monocular = depth == DepthMode::Predicted;
+        let tracker = Tracker::new(config.clone(), camera.clone(), monocular);
+        let detected_ahead = tracker.needs_keypoints_every_frame();
         let n = max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
         let map: SharedMap = Arc::new(RwLock::new(Map::default()));
         let keypoint_source = keypoints.name();
         let semantic_source = semantics.name();
         let stages = Stages {
-            tracker: Tracker::new(config.clone(), camera.clone(), monocular),
+            tracker,
             keypoints,
             mapper: LocalMapper::new(
                 config.clone(),
@@ -390,7 +392,9 @@ impl Slam {
             interrupted: run.interrupted,
             total_frames: n,
             threads: config.system.threads,
-            feature_workers: if config.system.threads {
+            // Keypoints detected by tracking itself (`tracking.keypoints_every_frame = false`
+            // in RGB-D mode): the workers only load.
+            feature_workers: if config.system.threads && detected_ahead {
                 config.system.feature_workers
             } else {
                 0

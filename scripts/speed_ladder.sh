@@ -28,7 +28,7 @@ rungs=(
     "FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75|"
     "FPFDCNN at 0.75 scale, no labels|--features fpfdcnn --labels none|0.75|"
     "FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5|"
-    "FPFDCNN where the depth cannot track, keyframes <= 4 frames apart + labels|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only; s/^max_frames = .*/max_frames = 4/"
+    "FPFDCNN where the depth cannot track, keyframes <= 4 frames apart + labels (configs/slam/keypoints_at_keyframes.toml)|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only; s/^max_frames = .*/max_frames = 4/"
     "FPFDCNN where the depth cannot track + labels|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only"
     "FPFDCNN where the depth cannot track, no labels|--features fpfdcnn --labels none|1.0|$keyframes_only"
     "ORB + SDFCNN labels|--features orb --labels sdfcnn||"

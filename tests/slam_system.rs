@@ -709,9 +709,16 @@ impl sdf_slam::slam::KeypointSource for CountedOrb {
 #[test]
 fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_detected() {
     let seq = box_room();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let shipped = SlamConfig::load(root.join("configs/slam/keypoints_at_keyframes.toml")).unwrap();
+    assert!(!shipped.tracking.keypoints_every_frame);
     let run = |every: bool, threads: bool| {
-        let mut cfg = config(threads);
-        cfg.tracking.keypoints_every_frame = every;
+        let mut cfg = if every {
+            config(threads)
+        } else {
+            shipped.clone()
+        };
+        cfg.system.threads = threads;
         let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
         let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Sensor, false);
         s.keypoints = Box::new(CountedOrb {

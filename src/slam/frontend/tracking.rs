@@ -278,6 +278,23 @@ impl Tracker {
         }
     }
 
+    /// The constant-velocity pose of frame `index` from frame `from` at `pose`, the velocity
+    /// applied once per frame of the gap (skipped frames).
+    fn predict(&self, pose: Pose, from: usize, index: usize) -> Pose {
+        let gap = index.saturating_sub(from).max(1);
+        (0..gap).fold(pose, |p, _| renormalized(&(p * self.velocity)))
+    }
+
+    /// Whether the motion rules (`keyframes.max_*`) make frame `index` a keyframe, `since`
+    /// being its pose in the reference keyframe's frame.
+    fn motion_wants_keyframe(&self, since: &Pose, reference: usize, index: usize) -> bool {
+        let rules = &self.cfg.keyframes;
+        let frames_since = index.saturating_sub(self.keyframes[reference].frame_index);
+        since.translation.vector.norm() > rules.max_translation
+            || since.rotation.angle().to_degrees() > rules.max_rotation_deg
+            || (rules.max_frames > 0 && frames_since >= rules.max_frames)
+    }
+
     /// Whether every frame needs its keypoints before it is tracked (else they are detected
     /// only when [`Self::track_without_keypoints`] declines the frame).
     pub fn needs_keypoints_every_frame(&self) -> bool {
@@ -306,25 +323,16 @@ impl Tracker {
         if *id != reference || self.lost_streak > 0 {
             return None;
         }
-        let gap = index.saturating_sub(last.index).max(1);
-        let mut predicted = last.pose;
-        for _ in 0..gap {
-            predicted = renormalized(&(predicted * self.velocity));
-        }
-        let kf = &self.keyframes[reference];
-        let initial = kf.pose.inverse() * predicted;
+        let predicted = self.predict(last.pose, last.index, index);
+        let kf_pose = self.keyframes[reference].pose;
+        let initial = kf_pose.inverse() * predicted;
         let since = align(model, depth, &initial, self.depth_range(), &cfg.dense)
             .filter(|a| a.passes_frame_gates(&initial, &cfg.dense))
             .map(|a| renormalized(&a.pose))?;
-        let rules = &cfg.keyframes;
-        let frames_since = index.saturating_sub(kf.frame_index);
-        let due = since.translation.vector.norm() > rules.max_translation
-            || since.rotation.angle().to_degrees() > rules.max_rotation_deg
-            || (rules.max_frames > 0 && frames_since >= rules.max_frames);
-        if due {
+        if self.motion_wants_keyframe(&since, reference, index) {
             return None;
         }
-        let pose = renormalized(&(kf.pose * since));
+        let pose = renormalized(&(kf_pose * since));
         self.velocity = renormalized(&(last.pose.inverse() * pose));
         self.counters.dense_kept += 1;
         self.counters.without_keypoints += 1;
@@ -403,12 +411,7 @@ impl Tracker {
             Some(l) => (l.pose, l.index),
             None => (self.keyframes[reference].pose, input.index),
         };
-        // Constant velocity, scaled by the frame gap (skipped frames).
-        let gap = input.index.saturating_sub(last_index).max(1);
-        let mut predicted = last_pose;
-        for _ in 0..gap {
-            predicted = renormalized(&(predicted * self.velocity));
-        }
+        let predicted = self.predict(last_pose, last_index, input.index);
         let mut status = FrameStatus::Tracked;
         let mut reference_now = reference;
         let guided = self.guided(&input.features, reference, &predicted);
@@ -483,14 +486,8 @@ impl Tracker {
         self.velocity = renormalized(&(last_pose.inverse() * pose));
         let kf_pose = self.keyframes[reference_now].pose;
         let since = kf_pose.inverse() * pose;
-        let rules = &self.cfg.keyframes;
-        let frames_since = input
-            .index
-            .saturating_sub(self.keyframes[reference_now].frame_index);
-        let wants_keyframe = ref_inliers < rules.min_inliers
-            || since.translation.vector.norm() > rules.max_translation
-            || since.rotation.angle().to_degrees() > rules.max_rotation_deg
-            || (rules.max_frames > 0 && frames_since >= rules.max_frames);
+        let wants_keyframe = ref_inliers < self.cfg.keyframes.min_inliers
+            || self.motion_wants_keyframe(&since, reference_now, input.index);
         let can = self.monocular || input.depth.is_some();
         if wants_keyframe && can {
             let mut out = self.start(input, Some(pose), status, events);

@@ -746,6 +746,27 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     );
     eprintln!("ATE {e_every:.4} m with keypoints on every frame, {e_dense:.4} m without");
     assert!(e_dense < 0.025, "ATE {e_dense} against {e_every}");
+    // Without sensor depth the setting cannot apply: the run says so and detects on every
+    // frame.
+    let said = Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
+    let log = said.clone();
+    let mut cfg = shipped.clone();
+    cfg.system.threads = false;
+    let mut mono = slam(&seq, box_camera(), cfg, DepthMode::Predicted, true);
+    mono.max_frames = Some(6);
+    let out = mono
+        .run(Control {
+            log: Arc::new(move |m: &str| log.lock().unwrap().push(m.to_string())),
+            ..Control::default()
+        })
+        .unwrap();
+    assert_eq!(out.tracking.without_keypoints, 0);
+    let said = said.lock().unwrap();
+    assert!(
+        said.iter()
+            .any(|m| m.contains("keypoints_every_frame = false needs sensor depth")),
+        "{said:?}"
+    );
 }
 
 #[test]

@@ -285,14 +285,19 @@ impl Tracker {
         (0..gap).fold(pose, |p, _| renormalized(&(p * self.velocity)))
     }
 
+    /// Whether `keyframes.max_frames` frames have passed since the reference keyframe.
+    fn keyframe_due_by_count(&self, reference: usize, index: usize) -> bool {
+        let max = self.cfg.keyframes.max_frames;
+        max > 0 && index.saturating_sub(self.keyframes[reference].frame_index) >= max
+    }
+
     /// Whether the motion rules (`keyframes.max_*`) make frame `index` a keyframe, `since`
     /// being its pose in the reference keyframe's frame.
     fn motion_wants_keyframe(&self, since: &Pose, reference: usize, index: usize) -> bool {
         let rules = &self.cfg.keyframes;
-        let frames_since = index.saturating_sub(self.keyframes[reference].frame_index);
         since.translation.vector.norm() > rules.max_translation
             || since.rotation.angle().to_degrees() > rules.max_rotation_deg
-            || (rules.max_frames > 0 && frames_since >= rules.max_frames)
+            || self.keyframe_due_by_count(reference, index)
     }
 
     /// Whether every frame needs its keypoints before it is tracked (else they are detected
@@ -320,7 +325,9 @@ impl Tracker {
         let reference = self.reference?;
         let last = self.last.as_ref()?;
         let (id, model) = self.dense_model.as_ref()?;
-        if *id != reference || self.lost_streak > 0 {
+        // A keyframe due by the frame count needs its keypoints whatever the alignment says.
+        if *id != reference || self.lost_streak > 0 || self.keyframe_due_by_count(reference, index)
+        {
             return None;
         }
         let predicted = self.predict(last.pose, last.index, index);

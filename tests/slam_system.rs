@@ -740,6 +740,16 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     assert_eq!(threaded_calls, dense_calls);
     assert_eq!(threaded.trajectory().poses, dense.trajectory().poses);
     assert!(dense.tracking.lost.is_empty(), "{:?}", dense.tracking);
+    // The report counts them, and says the threaded run's workers detected nothing.
+    let dir = tmp_dir("box_without_keypoints");
+    let sequence = TumSequence::open(&seq).unwrap();
+    let report = write_outputs(&threaded, &sequence, &box_camera(), &shipped, &dir).unwrap();
+    assert!(report.threads);
+    assert_eq!(report.tracking.without_keypoints, without);
+    assert_eq!(report.feature_workers, 0);
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    let row = format!("| tracked without keypoints (dense alignment alone) | {without} frames |");
+    assert!(md.contains(&row), "{md}");
     let (e_every, e_dense) = (
         ate(&every, &seq, Alignment::Se3),
         ate(&dense, &seq, Alignment::Se3),

@@ -22,18 +22,19 @@ rm -f "$OUT"/matching_*.json
 
 # rung name | slam flags | fpfdcnn_input_scale (empty: ORB keypoints) | other keys of the
 # config changed (sed expressions on configs/slam/default.toml)
-keyframes_only='s/^keypoints_every_frame = .*/keypoints_every_frame = false/'
+every_frame='s/^keypoints_every_frame = .*/keypoints_every_frame = true/'
+far_keyframes='s/^max_frames_depth_tracked = .*/max_frames_depth_tracked = 20/'
 rungs=(
-    "FPFDCNN + SDFCNN labels (default)|--features fpfdcnn --labels sdfcnn|1.0|"
-    "FPFDCNN, no labels|--features fpfdcnn --labels none|1.0|"
-    "FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75|"
-    "FPFDCNN at 0.75 scale, no labels|--features fpfdcnn --labels none|0.75|"
-    "FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5|"
-    "FPFDCNN where the depth cannot track, keyframes <= 4 frames apart + labels (configs/slam/keypoints_at_keyframes.toml)|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only; s/^max_frames = .*/max_frames = 4/"
-    "FPFDCNN where the depth cannot track + labels|--features fpfdcnn --labels sdfcnn|1.0|$keyframes_only"
-    "FPFDCNN where the depth cannot track, no labels|--features fpfdcnn --labels none|1.0|$keyframes_only"
-    "ORB + SDFCNN labels|--features orb --labels sdfcnn||"
-    "ORB, no labels|--features orb --labels none||"
+    "FPFDCNN where the depth cannot track + SDFCNN labels (default)|--features fpfdcnn --labels sdfcnn|1.0|"
+    "FPFDCNN where the depth cannot track, no labels|--features fpfdcnn --labels none|1.0|"
+    "the default, keyframes up to 20 frames apart + labels|--features fpfdcnn --labels sdfcnn|1.0|$far_keyframes"
+    "the default, keyframes up to 20 frames apart, no labels|--features fpfdcnn --labels none|1.0|$far_keyframes"
+    "the default, FPFDCNN at 0.75 scale + labels|--features fpfdcnn --labels sdfcnn|0.75|"
+    "the default, FPFDCNN at 0.5 scale, no labels|--features fpfdcnn --labels none|0.5|"
+    "FPFDCNN on every frame + labels (the paper's tracking)|--features fpfdcnn --labels sdfcnn|1.0|$every_frame"
+    "FPFDCNN on every frame, no labels|--features fpfdcnn --labels none|1.0|$every_frame"
+    "ORB where the depth cannot track + SDFCNN labels|--features orb --labels sdfcnn||"
+    "ORB where the depth cannot track, no labels|--features orb --labels none||"
 )
 
 field() { python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(eval(sys.argv[2]))" "$@"; }

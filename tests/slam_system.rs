@@ -709,16 +709,9 @@ impl sdf_slam::slam::KeypointSource for CountedOrb {
 #[test]
 fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_detected() {
     let seq = box_room();
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let shipped = SlamConfig::load(root.join("configs/slam/keypoints_at_keyframes.toml")).unwrap();
-    assert!(!shipped.tracking.keypoints_every_frame);
     let run = |every: bool, threads: bool| {
-        let mut cfg = if every {
-            config(threads)
-        } else {
-            shipped.clone()
-        };
-        cfg.system.threads = threads;
+        let mut cfg = config(threads);
+        cfg.tracking.keypoints_every_frame = every;
         let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
         let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Sensor, false);
         s.keypoints = Box::new(CountedOrb {
@@ -743,7 +736,7 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     // The report counts them, and says the threaded run's workers detected nothing.
     let dir = tmp_dir("box_without_keypoints");
     let sequence = TumSequence::open(&seq).unwrap();
-    let report = write_outputs(&threaded, &sequence, &box_camera(), &shipped, &dir).unwrap();
+    let report = write_outputs(&threaded, &sequence, &box_camera(), &config(true), &dir).unwrap();
     assert!(report.threads);
     assert_eq!(report.tracking.without_keypoints, without);
     assert_eq!(report.feature_workers, 0);
@@ -756,27 +749,23 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     );
     eprintln!("ATE {e_every:.4} m with keypoints on every frame, {e_dense:.4} m without");
     assert!(e_dense < 0.025, "ATE {e_dense} against {e_every}");
-    // Without sensor depth the setting cannot apply: the run says so and detects on every
-    // frame.
-    let said = Arc::new(std::sync::Mutex::new(Vec::<String>::new()));
-    let log = said.clone();
-    let mut cfg = shipped.clone();
-    cfg.system.threads = false;
-    let mut mono = slam(&seq, box_camera(), cfg, DepthMode::Predicted, true);
-    mono.max_frames = Some(6);
-    let out = mono
-        .run(Control {
-            log: Arc::new(move |m: &str| log.lock().unwrap().push(m.to_string())),
-            ..Control::default()
-        })
-        .unwrap();
-    assert_eq!(out.tracking.without_keypoints, 0);
-    let said = said.lock().unwrap();
-    assert!(
-        said.iter()
-            .any(|m| m.contains("keypoints_every_frame = false needs sensor depth")),
-        "{said:?}"
+    // Without sensor depth, or without the dense alignment, nothing tracks a frame by its
+    // depth: every frame is detected.
+    let mut no_dense = config(false);
+    no_dense.dense.enabled = false;
+    let mono = slam(
+        &seq,
+        box_camera(),
+        config(false),
+        DepthMode::Predicted,
+        true,
     );
+    let keypoints_alone = slam(&seq, box_camera(), no_dense, DepthMode::Sensor, false);
+    for mut s in [mono, keypoints_alone] {
+        s.max_frames = Some(6);
+        let out = s.run(quiet()).unwrap();
+        assert_eq!(out.tracking.without_keypoints, 0, "{:?}", out.tracking);
+    }
 }
 
 #[test]
@@ -798,7 +787,10 @@ fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
         log: Arc::new(move |m: &str| sink.lock().unwrap().push(m.to_string())),
         ..Control::default()
     };
-    let out = slam(&dir, box_camera(), config(false), DepthMode::Sensor, false)
+    // With keypoints on every frame, the black and the noise frames have none to track.
+    let mut every = config(false);
+    every.tracking.keypoints_every_frame = true;
+    let out = slam(&dir, box_camera(), every, DepthMode::Sensor, false)
         .run(control)
         .unwrap();
     assert_eq!(
@@ -828,6 +820,17 @@ fn lost_and_unreadable_frames_are_counted_and_the_run_goes_on() {
         "{log:?}"
     );
     // Still accurate where it tracked.
+    assert!(ate(&out, &dir, Alignment::Se3) < 0.05);
+    drop(log);
+    // The defaults track them by their depth, which is intact; the unreadable frame is still
+    // skipped.
+    let out = slam(&dir, box_camera(), config(false), DepthMode::Sensor, false)
+        .run(quiet())
+        .unwrap();
+    assert_eq!((out.frames.len(), out.skipped.len()), (23, 1));
+    assert!(out.tracking.lost.is_empty(), "{:?}", out.tracking);
+    let status8 = out.frames.iter().find(|f| f.index == 8).unwrap().status;
+    assert_eq!(status8, FrameStatus::Tracked);
     assert!(ate(&out, &dir, Alignment::Se3) < 0.05);
     // Strict: the unreadable frame ends the run with an error naming it (both loops).
     for threads in [false, true] {

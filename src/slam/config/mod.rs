@@ -254,12 +254,14 @@ pub struct TrackingConfig {
     /// to its colour image's (the trajectory's stamps), along the trajectory
     /// ([`crate::slam::backend::colour_instant`]); frames whose stamps are equal do not move.
     pub colour_instant: bool,
-    /// Detect keypoints on every frame (the paper's tracking). `false` (RGB-D, `dense.enabled`):
-    /// a frame is first tracked by the dense alignment alone against its reference keyframe's
-    /// depth, from the constant-velocity pose; keypoints are detected, and the frame tracked by
-    /// them, only when that alignment fails its gates (`dense.min_inlier_fraction`,
-    /// `dense.agree_*` against the prediction) or the frame is due to become a keyframe
-    /// (`keyframes.max_*`). Monocular runs detect on every frame either way.
+    /// Detect keypoints on every frame (the paper's tracking). `false` (the default; RGB-D
+    /// with `dense.enabled`): a frame is first tracked by the dense alignment alone against its
+    /// reference keyframe's depth, from the constant-velocity pose; keypoints are detected, and
+    /// the frame tracked by them, only when that alignment fails its gates
+    /// (`dense.min_inlier_fraction`, `dense.agree_*` against the prediction) or the frame is
+    /// due to become a keyframe (`keyframes.max_translation`, `max_rotation_deg`,
+    /// `max_frames_depth_tracked`). Monocular runs, and runs without the dense alignment,
+    /// detect on every frame whatever this says.
     pub keypoints_every_frame: bool,
 }
 
@@ -273,7 +275,7 @@ impl Default for TrackingConfig {
             reinitialise_after: 10,
             start_at_ground_truth: true,
             colour_instant: true,
-            keypoints_every_frame: true,
+            keypoints_every_frame: false,
         }
     }
 }
@@ -412,8 +414,14 @@ pub struct KeyframeConfig {
     pub max_translation: f64,
     /// Rotation since the reference keyframe above this, degrees.
     pub max_rotation_deg: f64,
-    /// This many frames since the reference keyframe (0: no limit).
+    /// This many frames since the reference keyframe, where keypoints are detected on every
+    /// frame (monocular, `tracking.keypoints_every_frame`, or no dense alignment).
     pub max_frames: usize,
+    /// This many frames since the reference keyframe, where frames between keyframes are
+    /// tracked by their depth alone (RGB-D, `tracking.keypoints_every_frame = false`): those
+    /// frames make no keyframe by their keypoints, so keyframes come from the motion rules and
+    /// this count only.
+    pub max_frames_depth_tracked: usize,
 }
 
 impl Default for KeyframeConfig {
@@ -423,6 +431,7 @@ impl Default for KeyframeConfig {
             max_translation: 0.10,
             max_rotation_deg: 10.0,
             max_frames: 20,
+            max_frames_depth_tracked: 4,
         }
     }
 }

@@ -161,20 +161,22 @@ fn defaults_round_trip_and_errors_name_fields() {
 }
 
 #[test]
-fn tracking_without_keypoints_on_every_frame_needs_the_dense_alignment() {
+fn frames_tracked_by_depth_have_their_own_keyframe_count() {
+    let d = SlamConfig::default();
+    assert!(!d.tracking.keypoints_every_frame);
+    assert_eq!(
+        (d.keyframes.max_frames, d.keyframes.max_frames_depth_tracked),
+        (20, 4)
+    );
+    let e = SlamConfig::parse(
+        "[keyframes]\nmax_frames_depth_tracked = 0\n",
+        Path::new("c.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("keyframes.max_frames_depth_tracked"), "{e}");
+    // Without the dense alignment nothing tracks a frame by its depth: not an error, the
+    // frames are detected (the tracker's side is tested in tests/slam_system.rs).
     let text = "[tracking]\nkeypoints_every_frame = false\n[dense]\nenabled = false\n";
-    let e = SlamConfig::parse(text, Path::new("c.toml"))
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("tracking.keypoints_every_frame") && e.contains("dense.enabled"),
-        "{e}"
-    );
-    let ok = "[tracking]\nkeypoints_every_frame = false\n";
-    assert!(
-        !SlamConfig::parse(ok, Path::new("c.toml"))
-            .unwrap()
-            .tracking
-            .keypoints_every_frame
-    );
+    assert!(SlamConfig::parse(text, Path::new("c.toml")).is_ok());
 }

@@ -88,6 +88,12 @@ impl SlamConfig {
             1_000_000,
             "keyframes.max_frames",
         )?;
+        count(
+            self.keyframes.max_frames_depth_tracked,
+            1,
+            1_000_000,
+            "keyframes.max_frames_depth_tracked",
+        )?;
         for (v, name) in [
             (self.correction.random_pairs, "correction.random_pairs"),
             (
@@ -166,13 +172,6 @@ impl SlamConfig {
         pos(self.tracking.max_depth, "tracking.max_depth")?;
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
-        }
-        if !self.tracking.keypoints_every_frame && !self.dense.enabled {
-            return Err(
-                "tracking.keypoints_every_frame = false tracks frames by the dense alignment: it \
-                 needs dense.enabled = true"
-                    .into(),
-            );
         }
         Ok(())
     }

@@ -285,10 +285,16 @@ impl Tracker {
         (0..gap).fold(pose, |p, _| renormalized(&(p * self.velocity)))
     }
 
-    /// Whether `keyframes.max_frames` frames have passed since the reference keyframe.
+    /// Whether `keyframes.max_frames` frames (`max_frames_depth_tracked` where frames are
+    /// tracked by their depth alone) have passed since the reference keyframe.
     fn keyframe_due_by_count(&self, reference: usize, index: usize) -> bool {
-        let max = self.cfg.keyframes.max_frames;
-        max > 0 && index.saturating_sub(self.keyframes[reference].frame_index) >= max
+        let rules = &self.cfg.keyframes;
+        let max = if self.needs_keypoints_every_frame() {
+            rules.max_frames
+        } else {
+            rules.max_frames_depth_tracked
+        };
+        index.saturating_sub(self.keyframes[reference].frame_index) >= max
     }
 
     /// Whether the motion rules (`keyframes.max_*`) make frame `index` a keyframe, `since`

@@ -283,12 +283,6 @@ impl Slam {
         let monocular = depth == DepthMode::Predicted;
         let tracker = Tracker::new(config.clone(), camera.clone(), monocular);
         let detected_ahead = tracker.needs_keypoints_every_frame();
-        if monocular && !config.tracking.keypoints_every_frame {
-            (control.log)(
-                "note: tracking.keypoints_every_frame = false needs sensor depth; this monocular \
-                 run detects keypoints on every frame",
-            );
-        }
         let n = max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
         let map: SharedMap = Arc::new(RwLock::new(Map::default()));
         let keypoint_source = keypoints.name();

@@ -749,23 +749,49 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     );
     eprintln!("ATE {e_every:.4} m with keypoints on every frame, {e_dense:.4} m without");
     assert!(e_dense < 0.025, "ATE {e_dense} against {e_every}");
-    // Without sensor depth, or without the dense alignment, nothing tracks a frame by its
-    // depth: every frame is detected.
+    // Without the dense alignment nothing tracks a frame by its depth: every frame is
+    // detected.
     let mut no_dense = config(false);
     no_dense.dense.enabled = false;
-    let mono = slam(
-        &seq,
-        box_camera(),
-        config(false),
-        DepthMode::Predicted,
-        true,
-    );
-    let keypoints_alone = slam(&seq, box_camera(), no_dense, DepthMode::Sensor, false);
-    for mut s in [mono, keypoints_alone] {
-        s.max_frames = Some(6);
+    let mut keypoints_alone = slam(&seq, box_camera(), no_dense, DepthMode::Sensor, false);
+    keypoints_alone.max_frames = Some(6);
+    let out = keypoints_alone.run(quiet()).unwrap();
+    assert_eq!(out.tracking.without_keypoints, 0, "{:?}", out.tracking);
+}
+
+#[test]
+fn with_monocular_flow_frames_between_keyframes_are_followed_by_optical_flow() {
+    let seq = box_room();
+    let run = |every: bool| {
+        let mut cfg = config(false);
+        cfg.tracking.monocular_flow = !every;
+        let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
+        s.keypoints = Box::new(CountedOrb {
+            orb: OrbSource::from_config(&cfg.features),
+            calls: calls.clone(),
+        });
         let out = s.run(quiet()).unwrap();
-        assert_eq!(out.tracking.without_keypoints, 0, "{:?}", out.tracking);
-    }
+        (out, calls.load(Ordering::SeqCst))
+    };
+    // The default detects on every monocular frame.
+    let ((every, every_calls), (flow, flow_calls)) = (run(true), run(false));
+    assert_eq!((every_calls, every.tracking.without_keypoints), (24, 0));
+    // Each frame is either followed by flow or has its keypoints detected, and a keyframe
+    // comes at least every `keyframes.max_frames_flow_tracked` frames.
+    let without = flow.tracking.without_keypoints;
+    assert_eq!(flow_calls + without, 24, "{:?}", flow.tracking);
+    assert!(without >= 8, "{:?}", flow.tracking);
+    let kf: Vec<usize> = flow.map.keyframes.iter().map(|k| k.frame_index).collect();
+    let most = SlamConfig::default().keyframes.max_frames_flow_tracked;
+    assert!(kf.windows(2).all(|w| w[1] - w[0] <= most), "{kf:?}");
+    assert!(flow.tracking.lost.is_empty(), "{:?}", flow.tracking);
+    let (e_every, e_flow) = (
+        ate(&every, &seq, Alignment::Sim3),
+        ate(&flow, &seq, Alignment::Sim3),
+    );
+    eprintln!("Sim(3) ATE {e_every:.4} m with keypoints on every frame, {e_flow:.4} m by flow");
+    assert!(e_flow < 0.025, "ATE {e_flow} against {e_every}");
 }
 
 #[test]

@@ -260,9 +260,16 @@ pub struct TrackingConfig {
     /// the frame tracked by them, only when that alignment fails its gates
     /// (`dense.min_inlier_fraction`, `dense.agree_*` against the prediction) or the frame is
     /// due to become a keyframe (`keyframes.max_translation`, `max_rotation_deg`,
-    /// `max_frames_depth_tracked`). Monocular runs, and runs without the dense alignment,
-    /// detect on every frame whatever this says.
+    /// `max_frames_depth_tracked`). Runs without the dense alignment detect on every frame
+    /// whatever this says; monocular runs unless `monocular_flow`.
     pub keypoints_every_frame: bool,
+    /// Monocular, with `keypoints_every_frame = false`: frames between keyframes are followed
+    /// by pyramidal Lucas-Kanade optical flow of the last frame's keypoints and placed by PnP
+    /// on their map points; keypoints are detected only when fewer than `keyframes.min_inliers`
+    /// remain or a keyframe is due (`keyframes.max_translation`, `max_rotation_deg`,
+    /// `max_frames_flow_tracked`). Faster, less accurate on some sequences
+    /// (`docs/performance.md`, the ladder).
+    pub monocular_flow: bool,
 }
 
 impl Default for TrackingConfig {
@@ -276,6 +283,7 @@ impl Default for TrackingConfig {
             start_at_ground_truth: true,
             colour_instant: true,
             keypoints_every_frame: false,
+            monocular_flow: false,
         }
     }
 }
@@ -415,13 +423,17 @@ pub struct KeyframeConfig {
     /// Rotation since the reference keyframe above this, degrees.
     pub max_rotation_deg: f64,
     /// This many frames since the reference keyframe, where keypoints are detected on every
-    /// frame (monocular, `tracking.keypoints_every_frame`, or no dense alignment).
+    /// frame (`tracking.keypoints_every_frame`, monocular without `tracking.monocular_flow`,
+    /// or RGB-D without the dense alignment).
     pub max_frames: usize,
     /// This many frames since the reference keyframe, where frames between keyframes are
     /// tracked by their depth alone (RGB-D, `tracking.keypoints_every_frame = false`): those
     /// frames make no keyframe by their keypoints, so keyframes come from the motion rules and
     /// this count only.
     pub max_frames_depth_tracked: usize,
+    /// This many frames since the reference keyframe, where frames between keyframes are
+    /// followed by optical flow (monocular, `tracking.monocular_flow`).
+    pub max_frames_flow_tracked: usize,
 }
 
 impl Default for KeyframeConfig {
@@ -432,6 +444,7 @@ impl Default for KeyframeConfig {
             max_rotation_deg: 10.0,
             max_frames: 20,
             max_frames_depth_tracked: 4,
+            max_frames_flow_tracked: 5,
         }
     }
 }

@@ -163,10 +163,15 @@ fn defaults_round_trip_and_errors_name_fields() {
 #[test]
 fn frames_tracked_by_depth_have_their_own_keyframe_count() {
     let d = SlamConfig::default();
-    assert!(!d.tracking.keypoints_every_frame);
+    assert!(!d.tracking.keypoints_every_frame && !d.tracking.monocular_flow);
+    let k = &d.keyframes;
     assert_eq!(
-        (d.keyframes.max_frames, d.keyframes.max_frames_depth_tracked),
-        (20, 4)
+        (
+            k.max_frames,
+            k.max_frames_depth_tracked,
+            k.max_frames_flow_tracked
+        ),
+        (20, 4, 5)
     );
     let e = SlamConfig::parse(
         "[keyframes]\nmax_frames_depth_tracked = 0\n",
@@ -175,6 +180,13 @@ fn frames_tracked_by_depth_have_their_own_keyframe_count() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("keyframes.max_frames_depth_tracked"), "{e}");
+    let e = SlamConfig::parse(
+        "[keyframes]\nmax_frames_flow_tracked = 0\n",
+        Path::new("c.toml"),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("keyframes.max_frames_flow_tracked"), "{e}");
     // Without the dense alignment nothing tracks a frame by its depth: not an error, the
     // frames are detected (the tracker's side is tested in tests/slam_system.rs).
     let text = "[tracking]\nkeypoints_every_frame = false\n[dense]\nenabled = false\n";

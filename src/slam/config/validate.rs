@@ -94,6 +94,12 @@ impl SlamConfig {
             1_000_000,
             "keyframes.max_frames_depth_tracked",
         )?;
+        count(
+            self.keyframes.max_frames_flow_tracked,
+            1,
+            1_000_000,
+            "keyframes.max_frames_flow_tracked",
+        )?;
         for (v, name) in [
             (self.correction.random_pairs, "correction.random_pairs"),
             (

@@ -20,12 +20,13 @@ use super::keypoints::{KeyFeatures, similarity};
 use super::matching::{Correspondences, Source, correspond};
 use crate::camera::{Camera, RayTable};
 use crate::dataset::DepthImage;
+use crate::features::optical_flow::{self, FlowParams, Pyramid};
 use crate::geometry::{Pose, renormalized};
 use crate::pnp::{PnpResult, solve_pnp_ransac};
 use crate::range_matcher::RangeMatcherConfig;
 use crate::slam::config::{DenseConfig, SlamConfig};
 use crate::slam::map::{KeyframeFeatures, KeypointDepth, Map, points_from_depth};
-use nalgebra::Point3;
+use nalgebra::{Point2, Point3};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -154,6 +155,9 @@ struct LastFrame {
     /// The frame whose keypoints `features` are: `index`, or an earlier frame when the
     /// frames since were lost or tracked without keypoints.
     detected: usize,
+    /// The frame whose image `features.points` are in: `detected`, or a later frame the
+    /// keypoints were followed to by optical flow (monocular).
+    seen: usize,
     features: KeyFeatures,
     world: Vec<Option<Point3<f64>>>,
 }
@@ -185,6 +189,9 @@ pub struct TrackingCounters {
     pub without_keypoints: usize,
 }
 
+/// Scales of the image pyramid of monocular tracking by optical flow (640x480 down to 160x120).
+const FLOW_LEVELS: usize = 3;
+
 /// `dense.frame_graph`: a frame's depth is kept every this many pixels as the next frame's
 /// model, and the next frame is aligned to it by the first (coarsest) of `dense.levels` with
 /// this many Gauss-Newton iterations: it starts from both frames' refined poses, close
@@ -215,6 +222,9 @@ pub(crate) struct Tracker {
     step_alignment: DenseConfig,
     /// The camera's pixel rays for the dense refinement, made at the first RGB-D keyframe.
     rays: Option<Arc<RayTable>>,
+    /// Monocular tracking by optical flow: the image pyramid of the last frame's keypoints
+    /// (`LastFrame::seen`), with its index.
+    flow_image: Option<(usize, Pyramid)>,
     /// Tracking trouble so far.
     pub counters: TrackingCounters,
 }
@@ -240,6 +250,7 @@ impl Tracker {
             dense_model: None,
             frame_model: None,
             rays: None,
+            flow_image: None,
             counters: TrackingCounters::default(),
         }
     }
@@ -286,11 +297,14 @@ impl Tracker {
     }
 
     /// Whether `keyframes.max_frames` frames (`max_frames_depth_tracked` where frames are
-    /// tracked by their depth alone) have passed since the reference keyframe.
+    /// tracked by their depth alone, `max_frames_flow_tracked` by optical flow) have passed
+    /// since the reference keyframe.
     fn keyframe_due_by_count(&self, reference: usize, index: usize) -> bool {
         let rules = &self.cfg.keyframes;
         let max = if self.needs_keypoints_every_frame() {
             rules.max_frames
+        } else if self.monocular {
+            rules.max_frames_flow_tracked
         } else {
             rules.max_frames_depth_tracked
         };
@@ -309,22 +323,56 @@ impl Tracker {
     /// Whether every frame needs its keypoints before it is tracked (else they are detected
     /// only when [`Self::track_without_keypoints`] declines the frame).
     pub fn needs_keypoints_every_frame(&self) -> bool {
-        self.cfg.tracking.keypoints_every_frame || self.monocular || !self.cfg.dense.enabled
+        let tracking = &self.cfg.tracking;
+        tracking.keypoints_every_frame
+            || if self.monocular {
+                !tracking.monocular_flow
+            } else {
+                !self.cfg.dense.enabled
+            }
+    }
+
+    /// Whether frames between keyframes are followed by optical flow (monocular,
+    /// `tracking.monocular_flow`): [`Self::track_without_keypoints`] then wants
+    /// each frame's image pyramid, and [`Self::keep_image`] after each frame.
+    pub fn tracks_by_flow(&self) -> bool {
+        self.monocular && !self.needs_keypoints_every_frame()
+    }
+
+    /// The image pyramid [`Self::track_without_keypoints`] and [`Self::keep_image`] want of a
+    /// frame's grey image when [`Self::tracks_by_flow`].
+    pub fn flow_pyramid(gray: &image::GrayImage) -> Pyramid {
+        Pyramid::new(gray, FLOW_LEVELS)
+    }
+
+    /// Keeps frame `index`'s image pyramid when the last frame's keypoints are in it (a frame
+    /// tracked by its keypoints or followed by flow; not a lost one), for the next frame's
+    /// optical flow.
+    pub fn keep_image(&mut self, index: usize, pyramid: Pyramid) {
+        if self.last.as_ref().is_some_and(|l| l.seen == index) {
+            self.flow_image = Some((index, pyramid));
+        }
     }
 
     /// `tracking.keypoints_every_frame = false` (RGB-D): tracks a frame by the dense alignment
     /// alone against its reference keyframe's depth, from the constant-velocity pose, when that
     /// is enough: the alignment passes the refinement's gates against the prediction
     /// (`dense.min_inlier_fraction`, `dense.agree_*`) and the frame is not due to become a
-    /// keyframe (`keyframes.max_*`). `None`: the frame needs its keypoints ([`Self::track`]).
+    /// keyframe (`keyframes.max_*`). Monocular runs with `tracking.monocular_flow` follow the
+    /// last keypoints by optical flow instead ([`Self::track_by_flow`], from `image`, the
+    /// frame's [`Self::flow_pyramid`]). `None`: the frame needs its keypoints ([`Self::track`]).
     pub fn track_without_keypoints(
         &mut self,
         index: usize,
         stamp: f64,
         depth: Option<&DepthImage>,
+        image: Option<&Pyramid>,
     ) -> Option<TrackOutput> {
         if self.needs_keypoints_every_frame() {
             return None;
+        }
+        if self.monocular {
+            return self.track_by_flow(index, stamp, image?);
         }
         let cfg = &self.cfg;
         let depth = depth?;
@@ -372,6 +420,111 @@ impl Tracker {
         if self.cfg.dense.frame_graph {
             self.frame_step(&mut record, Some(depth));
         }
+        Some(TrackOutput {
+            record,
+            keyframe: None,
+            events: Vec::new(),
+        })
+    }
+
+    /// Monocular, `tracking.monocular_flow`: follows the last frame's keypoints
+    /// that have map points into this frame by pyramidal Lucas-Kanade optical flow
+    /// ([`optical_flow::track`], each started where the constant-velocity pose projects its map
+    /// point) and places the frame by PnP on them, when that is enough: at least
+    /// `keyframes.min_inliers` inliers and no `keyframes.max_*` rule due. The inliers become
+    /// the last frame's keypoints, at their new places. `None`: the frame needs its keypoints
+    /// ([`Self::track`]).
+    fn track_by_flow(&mut self, index: usize, stamp: f64, image: &Pyramid) -> Option<TrackOutput> {
+        let reference = self.reference?;
+        let last = self.last.as_ref()?;
+        let (seen, from) = self.flow_image.as_ref()?;
+        if *seen != last.seen
+            || self.lost_streak > 0
+            || self.keyframe_due_by_count(reference, index)
+        {
+            return None;
+        }
+        let min = self.cfg.keyframes.min_inliers.max(4);
+        let predicted = self.predict(last.pose, last.index, index);
+        let to_camera = predicted.inverse();
+        let followed: Vec<(usize, Point3<f64>)> = last
+            .world
+            .iter()
+            .enumerate()
+            .filter_map(|(k, w)| w.map(|w| (k, w)))
+            .collect();
+        if followed.len() < min {
+            return None;
+        }
+        let points: Vec<[f32; 2]> = followed
+            .iter()
+            .map(|&(k, _)| last.features.points[k])
+            .collect();
+        let guesses: Vec<[f32; 2]> = followed
+            .iter()
+            .zip(&points)
+            .map(|((_, w), p)| {
+                self.camera
+                    .project(&(to_camera * w))
+                    .map_or([0.0; 2], |q| [q.x as f32 - p[0], q.y as f32 - p[1]])
+            })
+            .collect();
+        let moved =
+            optical_flow::track(from, image, &points, Some(&guesses), &FlowParams::default());
+        let kept: Vec<(usize, Point3<f64>, [f32; 2])> = followed
+            .iter()
+            .zip(&moved)
+            .filter_map(|(&(k, w), q)| q.map(|q| (k, w, q)))
+            .collect();
+        if kept.len() < min {
+            return None;
+        }
+        let world: Vec<Point3<f64>> = kept.iter().map(|k| k.1).collect();
+        let pixels: Vec<Point2<f64>> = kept
+            .iter()
+            .map(|k| Point2::new(f64::from(k.2[0]), f64::from(k.2[1])))
+            .collect();
+        let pnp = self.cfg.pnp.pnp();
+        let result =
+            solve_pnp_ransac(&world, &pixels, &self.camera, Some(&to_camera), &pnp).ok()?;
+        if result.n_inliers < min {
+            return None;
+        }
+        let pose = renormalized(&result.pose.inverse());
+        let since = self.keyframes[reference].pose.inverse() * pose;
+        if self.motion_wants_keyframe(&since, reference, index) {
+            return None;
+        }
+        self.velocity = renormalized(&(last.pose.inverse() * pose));
+        self.counters.without_keypoints += 1;
+        let last = self.last.as_mut()?;
+        let mut world = vec![None; last.world.len()];
+        for ((k, w, q), _) in kept
+            .iter()
+            .zip(&result.inliers)
+            .filter(|(_, inlier)| **inlier)
+        {
+            last.features.points[*k] = *q;
+            world[*k] = Some(*w);
+        }
+        last.world = world;
+        last.pose = pose;
+        last.index = index;
+        last.seen = index;
+        let record = FrameRecord {
+            index,
+            stamp,
+            status: FrameStatus::Tracked,
+            keyframe: None,
+            reference: Some(reference),
+            relative: since,
+            odom_pose: pose,
+            inliers: result.n_inliers,
+            correspondences: kept.len(),
+            observations: Vec::new(),
+            dense: false,
+            step: None,
+        };
         Some(TrackOutput {
             record,
             keyframe: None,
@@ -526,6 +679,7 @@ impl Tracker {
             index: input.index,
             pose,
             detected: input.index,
+            seen: input.index,
             features: input.features,
             world,
         });
@@ -636,6 +790,7 @@ impl Tracker {
             index: input.index,
             pose,
             detected: input.index,
+            seen: input.index,
             features: input.features,
             world,
         });

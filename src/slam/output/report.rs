@@ -129,8 +129,9 @@ pub struct TrackingReport {
     /// RGB-D: frames where the dense refinement's pose was not kept.
     #[serde(default)]
     pub dense_rejected: usize,
-    /// `tracking.keypoints_every_frame = false`: frames tracked by the dense alignment alone,
-    /// with no keypoints detected (counted in `dense_kept` too).
+    /// Frames tracked with no keypoints detected: by the dense alignment alone (RGB-D,
+    /// `tracking.keypoints_every_frame = false`; counted in `dense_kept` too) or by optical flow
+    /// (monocular, `tracking.monocular_flow`).
     #[serde(default)]
     pub without_keypoints: usize,
     /// `tracking.colour_instant`: frames whose pose was moved from their depth image's
@@ -438,7 +439,8 @@ impl Report {
         if self.tracking.without_keypoints > 0 {
             let _ = writeln!(
                 s,
-                "| tracked without keypoints (dense alignment alone) | {} frames |",
+                "| tracked without keypoints ({}) | {} frames |",
+                self.tracked_without_keypoints_by(),
                 self.tracking.without_keypoints
             );
         }
@@ -672,6 +674,16 @@ impl Report {
         }
     }
 
+    /// What placed the frames tracked without keypoints: the dense alignment of their depth
+    /// (RGB-D) or the optical flow of the last keypoints (monocular).
+    fn tracked_without_keypoints_by(&self) -> &'static str {
+        if self.mode == "monocular" {
+            "optical flow"
+        } else {
+            "dense alignment alone"
+        }
+    }
+
     /// The end-of-run summary for the terminal.
     pub fn summary(&self) -> String {
         let mut s = String::new();
@@ -712,7 +724,8 @@ impl Report {
         if self.tracking.without_keypoints > 0 {
             let _ = writeln!(
                 s,
-                "tracked without keypoints (dense alignment alone): {} frames",
+                "tracked without keypoints ({}): {} frames",
+                self.tracked_without_keypoints_by(),
                 self.tracking.without_keypoints
             );
         }

@@ -115,7 +115,8 @@ fn prepare(
 /// of the README give byte-identical trajectories). With workers, the `load` and `features`
 /// times are each worker's, summed: they overlap tracking and each other. With
 /// `tracking.keypoints_every_frame = false` (RGB-D) keypoints are detected on this thread, and
-/// only for the frames the dense alignment alone cannot track
+/// only for the frames the dense alignment alone cannot track, or (monocular,
+/// `tracking.monocular_flow`) that optical flow cannot follow
 /// ([`Tracker::track_without_keypoints`]).
 pub(super) fn tracking_loop(
     frames: &Frames,
@@ -145,6 +146,7 @@ pub(super) fn tracking_loop(
         repeats: RepeatCounts::default(),
     };
     let detect = run.tracker.needs_keypoints_every_frame();
+    let flow = run.tracker.tracks_by_flow();
     // The last loaded frame's index and image hashes.
     let mut previous: Option<(usize, ImageKeys)> = None;
     let mut track = |i: usize, p: Prepared| -> bool {
@@ -173,9 +175,18 @@ pub(super) fn tracking_loop(
         // The dense alignment's try and the tracking by keypoints count as tracking, a
         // detection here as features.
         let t = Instant::now();
+        // Monocular tracking by optical flow: the frame's grey image (also the detector's) and
+        // its pyramid.
+        let gray = flow.then(|| rgb_to_gray(&frame.rgb));
+        let pyramid = gray.as_ref().map(Tracker::flow_pyramid);
         let without = match features {
             Some(_) => None,
-            None => tracker.track_without_keypoints(i, frame.stamp, frame.depth.as_ref()),
+            None => tracker.track_without_keypoints(
+                i,
+                frame.stamp,
+                frame.depth.as_ref(),
+                pyramid.as_ref(),
+            ),
         };
         let mut tracking = t.elapsed();
         let out = match without {
@@ -188,7 +199,10 @@ pub(super) fn tracking_loop(
                     }
                     None => {
                         let t = Instant::now();
-                        let f = keypoints.detect(&rgb_to_gray(&frame.rgb));
+                        let f = match &gray {
+                            Some(g) => keypoints.detect(g),
+                            None => keypoints.detect(&rgb_to_gray(&frame.rgb)),
+                        };
                         run.features.add(t);
                         f
                     }
@@ -211,6 +225,9 @@ pub(super) fn tracking_loop(
                 out
             }
         };
+        if let Some(p) = pyramid {
+            tracker.keep_image(i, p);
+        }
         run.tracking.add_duration(tracking);
         for e in &out.events {
             log(e);

@@ -78,6 +78,33 @@ pub struct FrameRecord {
 }
 
 impl FrameRecord {
+    /// A frame tracked against keyframe `reference` without keypoints of its own (by its
+    /// depth or by optical flow): no keyframe, no observations, no frame-to-frame step yet.
+    fn tracked_without_keypoints(
+        index: usize,
+        stamp: f64,
+        reference: usize,
+        relative: Pose,
+        odom_pose: Pose,
+    ) -> Self {
+        FrameRecord {
+            index,
+            stamp,
+            status: FrameStatus::Tracked,
+            keyframe: None,
+            reference: Some(reference),
+            relative,
+            odom_pose,
+            inliers: 0,
+            correspondences: 0,
+            observations: Vec::new(),
+            dense: false,
+            step: None,
+        }
+    }
+}
+
+impl FrameRecord {
     /// The frame's final pose: its reference keyframe's pose in `map` composed with the
     /// tracked relative pose (the odometry pose without a reference in `map`).
     pub fn pose_in(&self, map: &Map) -> Pose {
@@ -403,20 +430,9 @@ impl Tracker {
             last.pose = pose;
             last.index = index;
         }
-        let mut record = FrameRecord {
-            index,
-            stamp,
-            status: FrameStatus::Tracked,
-            keyframe: None,
-            reference: Some(reference),
-            relative: since,
-            odom_pose: pose,
-            inliers: 0,
-            correspondences: 0,
-            observations: Vec::new(),
-            dense: true,
-            step: None,
-        };
+        let mut record =
+            FrameRecord::tracked_without_keypoints(index, stamp, reference, since, pose);
+        record.dense = true;
         if self.cfg.dense.frame_graph {
             self.frame_step(&mut record, Some(depth));
         }
@@ -511,20 +527,9 @@ impl Tracker {
         last.pose = pose;
         last.index = index;
         last.seen = index;
-        let record = FrameRecord {
-            index,
-            stamp,
-            status: FrameStatus::Tracked,
-            keyframe: None,
-            reference: Some(reference),
-            relative: since,
-            odom_pose: pose,
-            inliers: result.n_inliers,
-            correspondences: kept.len(),
-            observations: Vec::new(),
-            dense: false,
-            step: None,
-        };
+        let mut record =
+            FrameRecord::tracked_without_keypoints(index, stamp, reference, since, pose);
+        (record.inliers, record.correspondences) = (result.n_inliers, kept.len());
         Some(TrackOutput {
             record,
             keyframe: None,

@@ -706,20 +706,27 @@ impl sdf_slam::slam::KeypointSource for CountedOrb {
     }
 }
 
+/// The box room's run with ORB keypoints (ground-truth labels and depth where monocular),
+/// and how many frames the keypoints were detected on.
+fn run_counting_detections(seq: &Path, cfg: SlamConfig, depth: DepthMode) -> (SlamOutput, usize) {
+    let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let labels = depth == DepthMode::Predicted;
+    let mut s = slam(seq, box_camera(), cfg.clone(), depth, labels);
+    s.keypoints = Box::new(CountedOrb {
+        orb: OrbSource::from_config(&cfg.features),
+        calls: calls.clone(),
+    });
+    let out = s.run(quiet()).unwrap();
+    (out, calls.load(Ordering::SeqCst))
+}
+
 #[test]
 fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_detected() {
     let seq = box_room();
     let run = |every: bool, threads: bool| {
         let mut cfg = config(threads);
         cfg.tracking.keypoints_every_frame = every;
-        let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-        let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Sensor, false);
-        s.keypoints = Box::new(CountedOrb {
-            orb: OrbSource::from_config(&cfg.features),
-            calls: calls.clone(),
-        });
-        let out = s.run(quiet()).unwrap();
-        (out, calls.load(Ordering::SeqCst))
+        run_counting_detections(&seq, cfg, DepthMode::Sensor)
     };
     let ((every, every_calls), (dense, dense_calls), (threaded, threaded_calls)) =
         (run(true, false), run(false, false), run(false, true));
@@ -765,14 +772,7 @@ fn with_monocular_flow_frames_between_keyframes_are_followed_by_optical_flow() {
     let run = |every: bool| {
         let mut cfg = config(false);
         cfg.tracking.monocular_flow = !every;
-        let calls = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-        let mut s = slam(&seq, box_camera(), cfg.clone(), DepthMode::Predicted, true);
-        s.keypoints = Box::new(CountedOrb {
-            orb: OrbSource::from_config(&cfg.features),
-            calls: calls.clone(),
-        });
-        let out = s.run(quiet()).unwrap();
-        (out, calls.load(Ordering::SeqCst))
+        run_counting_detections(&seq, cfg, DepthMode::Predicted)
     };
     // The default detects on every monocular frame.
     let ((every, every_calls), (flow, flow_calls)) = (run(true), run(false));

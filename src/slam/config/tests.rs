@@ -173,20 +173,25 @@ fn frames_tracked_by_depth_have_their_own_keyframe_count() {
         ),
         (20, 4, 5)
     );
-    let e = SlamConfig::parse(
-        "[keyframes]\nmax_frames_depth_tracked = 0\n",
-        Path::new("c.toml"),
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("keyframes.max_frames_depth_tracked"), "{e}");
-    let e = SlamConfig::parse(
-        "[keyframes]\nmax_frames_flow_tracked = 0\n",
-        Path::new("c.toml"),
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("keyframes.max_frames_flow_tracked"), "{e}");
+    for (text, names) in [
+        (
+            "[keyframes]\nmax_frames_depth_tracked = 0\n",
+            &["keyframes.max_frames_depth_tracked"][..],
+        ),
+        (
+            "[keyframes]\nmax_frames_flow_tracked = 0\n",
+            &["keyframes.max_frames_flow_tracked"],
+        ),
+        (
+            "[tracking]\nmonocular_flow = true\nkeypoints_every_frame = true\n",
+            &["tracking.monocular_flow", "tracking.keypoints_every_frame"],
+        ),
+    ] {
+        let e = SlamConfig::parse(text, Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(names.iter().all(|n| e.contains(n)), "{text}: {e}");
+    }
     // Without the dense alignment nothing tracks a frame by its depth: not an error, the
     // frames are detected (the tracker's side is tested in tests/slam_system.rs).
     let text = "[tracking]\nkeypoints_every_frame = false\n[dense]\nenabled = false\n";

@@ -179,6 +179,13 @@ impl SlamConfig {
         if !(self.tracking.min_depth >= 0.0 && self.tracking.min_depth < self.tracking.max_depth) {
             return Err("tracking.min_depth must be in [0, tracking.max_depth)".into());
         }
+        if self.tracking.monocular_flow && self.tracking.keypoints_every_frame {
+            return Err(
+                "tracking.monocular_flow = true follows keypoints between keyframes, which \
+                 tracking.keypoints_every_frame = true detects on every frame: set one of them"
+                    .into(),
+            );
+        }
         Ok(())
     }
 

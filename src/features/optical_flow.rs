@@ -118,13 +118,14 @@ impl Level {
         }
     }
 
-    /// Whether the window of `radius` around `(x, y)` lies where bilinear sampling is defined.
+    /// Whether the window of `radius` around `(x, y)` lies where bilinear sampling is defined
+    /// (nowhere in an image under two pixels a side).
     fn holds(&self, x: f32, y: f32, radius: usize) -> bool {
         let r = radius as f32;
         x - r >= 0.0
             && y - r >= 0.0
-            && x + r < (self.width - 1) as f32
-            && y + r < (self.height - 1) as f32
+            && x + r < self.width as f32 - 1.0
+            && y + r < self.height as f32 - 1.0
     }
 }
 
@@ -140,6 +141,15 @@ fn sample(plane: &[f32], width: usize, x: f32, y: f32) -> f32 {
     top + ay * (bottom - top)
 }
 
+/// A window's intensities and gradients in the image a point comes from, kept between the
+/// points a task follows.
+#[derive(Default)]
+struct Window {
+    template: Vec<f32>,
+    gx: Vec<f32>,
+    gy: Vec<f32>,
+}
+
 /// Where `point` of `from` went in `to`, starting from the displacement `guess`; `None` where
 /// the window leaves an image, has too little texture, or the iterations diverge.
 fn follow(
@@ -148,13 +158,15 @@ fn follow(
     point: [f32; 2],
     guess: [f32; 2],
     p: &FlowParams,
+    window: &mut Window,
 ) -> Option<[f32; 2]> {
     let top = from.levels.len().min(to.levels.len()) - 1;
     let side = 2 * p.radius + 1;
     let n = side * side;
-    let mut template = vec![0.0f32; n];
-    let mut gx = vec![0.0f32; n];
-    let mut gy = vec![0.0f32; n];
+    let Window { template, gx, gy } = window;
+    for v in [&mut *template, &mut *gx, &mut *gy] {
+        v.resize(n, 0.0);
+    }
     let scale = (1u32 << top) as f32;
     let mut g = [guess[0] / scale, guess[1] / scale];
     for level in (0..=top).rev() {
@@ -228,10 +240,10 @@ pub fn track(
     points
         .par_iter()
         .enumerate()
-        .map(|(i, &pt)| {
+        .map_init(Window::default, |window, (i, &pt)| {
             let guess = guesses.map_or([0.0; 2], |g| g[i]);
-            let q = follow(from, to, pt, guess, p)?;
-            let back = follow(to, from, q, [pt[0] - q[0], pt[1] - q[1]], p)?;
+            let q = follow(from, to, pt, guess, p, window)?;
+            let back = follow(to, from, q, [pt[0] - q[0], pt[1] - q[1]], p, window)?;
             let (ex, ey) = (back[0] - pt[0], back[1] - pt[1]);
             (ex * ex + ey * ey <= p.max_back_error * p.max_back_error).then_some(q)
         })
@@ -280,6 +292,10 @@ mod tests {
             track(&flat, &flat, &points, None, &FlowParams::default()),
             [None]
         );
+        // An image too small for any window: lost, no panic.
+        let dot = Pyramid::new(&GrayImage::from_pixel(1, 1, image::Luma([9])), 3);
+        let params = FlowParams::default();
+        assert_eq!(track(&dot, &dot, &[[0.0, 0.0]], None, &params), [None]);
         let a = Pyramid::new(&texture(80, 60, 0.0, 0.0), 2);
         let edge = [[3.0, 30.0], [40.0, 58.5]];
         assert_eq!(

@@ -292,13 +292,16 @@ impl PackedSdfcnn {
 /// For every pixel of an `[h, w]` image: the channel with the largest value in the bilinear
 /// upsampling of `logits` (the first on ties, as Burn's argmax), without storing the
 /// upsampled maps. Columns first, then rows, as [`nhwc::resize_bilinear`]: each band of
-/// [`ARGMAX_BAND`] output rows blends the columns of the logit rows it reads once, then each
+/// [`ARGMAX_BAND`] output rows blends the columns of the logit rows it reads once, into rows
+/// of one channel each (so that [`argmax_row`] compares [`LANES`] pixels at once), then each
 /// pixel's two rows.
 fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
     use crate::nn::resize::taps;
     let c = logits.c;
     let tx: Vec<_> = (0..w).map(|x| taps(x, logits.w, w)).collect();
-    let row = w * c;
+    // A blended logit row: c channel rows of `wp` values (the pixels past w are zeros).
+    let wp = w.div_ceil(LANES) * LANES;
+    let row = c * wp;
     let mut labels = vec![0u8; h * w];
     if row == 0 || h == 0 || logits.h == 0 || logits.w == 0 {
         return labels;
@@ -314,20 +317,25 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
             // Logit rows lo..=hi, their columns blended to the output's width.
             let (lo, hi) = (ty[0].i0, ty[ty.len() - 1].i1);
             ARGMAX_SCRATCH.with(|cell| {
-                let (cols, v) = &mut *cell.borrow_mut();
+                let (cols, best) = &mut *cell.borrow_mut();
                 // Every value is written before it is read: no zeroing on reuse.
                 cols.resize((hi - lo + 1) * row, 0.0);
-                v.resize(c, 0.0);
+                best.resize(2 * wp, 0.0);
                 for (k, out) in cols.chunks_exact_mut(row).enumerate() {
-                    for (o, t) in out.chunks_exact_mut(c).zip(&tx) {
-                        let y = lo + k;
-                        nhwc::blend(o, logits.pixel(y, t.i0), t.w0, logits.pixel(y, t.i1), t.w1);
+                    for (x, t) in tx.iter().enumerate() {
+                        let (p, q) = (logits.pixel(lo + k, t.i0), logits.pixel(lo + k, t.i1));
+                        for (i, (&p, &q)) in p.iter().zip(q).enumerate() {
+                            out[i * wp + x] = t.w0 * p + t.w1 * q;
+                        }
+                    }
+                    for channel in out.chunks_exact_mut(wp) {
+                        channel[w..].fill(0.0);
                     }
                 }
                 for (out, t) in band.chunks_mut(w).zip(&ty) {
                     let r0 = &cols[(t.i0 - lo) * row..][..row];
                     let r1 = &cols[(t.i1 - lo) * row..][..row];
-                    argmax_row(out, r0, t.w0, r1, t.w1, v);
+                    argmax_row(out, r0, t.w0, r1, t.w1, wp, best);
                 }
             })
         });
@@ -337,28 +345,53 @@ fn upsampled_argmax(logits: &NhwcView, [h, w]: [usize; 2]) -> Vec<u8> {
 /// Output rows a task of [`upsampled_argmax`] labels.
 const ARGMAX_BAND: usize = 16;
 
+/// Pixels [`argmax_row`] compares at once.
+const LANES: usize = 16;
+
 thread_local! {
-    /// A band's column-blended logit rows and one pixel's blend, kept per thread.
+    /// A band's column-blended logit rows and a row's running maxima and labels, kept per
+    /// thread.
     static ARGMAX_SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
         const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
 nhwc::simd_fn! {
-    /// One row of labels: pixel `x`'s is the first channel with the largest
-    /// `a0·r0[x·c + i] + a1·r1[x·c + i]` (`c` = `v.len()` channels; `v` is scratch).
-    fn argmax_row(out: &mut [u8], r0: &[f32], a0: f32, r1: &[f32], a1: f32, v: &mut [f32]) {
-        let c = v.len();
-        for ((label, p), q) in out.iter_mut().zip(r0.chunks_exact(c)).zip(r1.chunks_exact(c)) {
-            for ((o, &p), &q) in v.iter_mut().zip(p).zip(q) {
-                *o = a0 * p + a1 * q;
-            }
-            let mut best = 0;
-            for i in 1..c {
-                if v[i] > v[best] {
-                    best = i;
+    /// One row of labels: pixel `x`'s is the first channel `i` with the largest
+    /// `a0·r0[i·wp + x] + a1·r1[i·wp + x]` (`r0`, `r1`: channel rows of `wp` values, a
+    /// multiple of [`LANES`]; `scratch` holds `2·wp` values).
+    fn argmax_row(
+        out: &mut [u8],
+        r0: &[f32],
+        a0: f32,
+        r1: &[f32],
+        a1: f32,
+        wp: usize,
+        scratch: &mut [f32],
+    ) {
+        let (best, label) = scratch[..2 * wp].split_at_mut(wp);
+        for ((b, &p), &q) in best.iter_mut().zip(&r0[..wp]).zip(&r1[..wp]) {
+            *b = a0 * p + a1 * q;
+        }
+        label.fill(0.0);
+        let channels = r0.len() / wp;
+        for x in (0..wp).step_by(LANES) {
+            let mut b: [f32; LANES] = best[x..x + LANES].try_into().expect("LANES values");
+            let mut l = [0.0f32; LANES];
+            for i in 1..channels {
+                let p: &[f32; LANES] = r0[i * wp + x..][..LANES].try_into().expect("LANES");
+                let q: &[f32; LANES] = r1[i * wp + x..][..LANES].try_into().expect("LANES");
+                let fi = i as f32;
+                for k in 0..LANES {
+                    let v = a0 * p[k] + a1 * q[k];
+                    let more = v > b[k];
+                    b[k] = if more { v } else { b[k] };
+                    l[k] = if more { fi } else { l[k] };
                 }
             }
-            *label = best.min(254) as u8;
+            label[x..x + LANES].copy_from_slice(&l);
+        }
+        for (o, &l) in out.iter_mut().zip(label.iter()) {
+            *o = (l as usize).min(254) as u8;
         }
     }
 }

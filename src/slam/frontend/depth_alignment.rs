@@ -61,21 +61,26 @@ impl DepthModel {
             let z = f64::from(depth.data[v * depth.width as usize + u]);
             (z > range.0 && z < range.1).then(|| rays.point(u, v, z).coords)
         };
-        let vertices: Vec<Option<Vector3<f64>>> = (0..height)
-            .flat_map(|gy| (0..width).map(move |gx| (gx, gy)))
-            .map(|(gx, gy)| vertex(gx, gy))
-            .collect();
-        let at = |gx: usize, gy: usize| vertices[gy * width + gx];
+        // Three rows of vertices at a time (the row above, this one, the row below), so that
+        // they stay in cache.
+        let mut rows: [Vec<Option<Vector3<f64>>>; 3] = std::array::from_fn(|_| Vec::new());
+        let fill = |row: &mut Vec<Option<Vector3<f64>>>, gy: usize| {
+            row.clear();
+            row.extend((0..width).map(|gx| vertex(gx, gy)));
+        };
         let mut points = vec![None; width * height];
+        if height >= 2 {
+            fill(&mut rows[1], 0);
+            fill(&mut rows[2], 1);
+        }
         for gy in 1..height.saturating_sub(1) {
+            rows.rotate_left(1);
+            fill(&mut rows[2], gy + 1);
+            let [above, here, below] = &rows;
             for gx in 1..width.saturating_sub(1) {
-                let (Some(p), Some(l), Some(r), Some(u), Some(d)) = (
-                    at(gx, gy),
-                    at(gx - 1, gy),
-                    at(gx + 1, gy),
-                    at(gx, gy - 1),
-                    at(gx, gy + 1),
-                ) else {
+                let (Some(p), Some(l), Some(r), Some(u), Some(d)) =
+                    (here[gx], here[gx - 1], here[gx + 1], above[gx], below[gx])
+                else {
                     continue;
                 };
                 let jump = 0.05 * p.z;
@@ -133,16 +138,31 @@ impl DepthModel {
         Some((c.fx * u + c.cx, c.fy * v + c.cy))
     }
 
-    /// The model point, normal and weight at a projected pixel: the nearest grid sample.
+    /// The grid sample nearest a projected pixel, as an index of `points`.
     #[inline]
-    fn lookup(&self, pixel: (f64, f64)) -> Option<&[f32; 7]> {
+    fn cell(&self, pixel: (f64, f64)) -> Option<usize> {
         // Rounded to the nearest sample (the `+ 0.5` and truncation of a non-negative value).
         let gx = pixel.0 * self.inv_cell + 0.5;
         let gy = pixel.1 * self.inv_cell + 0.5;
         if gx < 0.0 || gy < 0.0 || gx >= self.width as f64 || gy >= self.height as f64 {
             return None;
         }
-        self.points[gy as usize * self.width + gx as usize].as_ref()
+        Some(gy as usize * self.width + gx as usize)
+    }
+
+    /// Asks the CPU to bring `points[cell]` into cache (it is read a few points later).
+    #[inline(always)]
+    fn prefetch(&self, cell: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(p) = self.points.get(cell) {
+            // SAFETY: a prefetch only hints; the address is that of an element.
+            unsafe {
+                use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+                _mm_prefetch::<_MM_HINT_T0>((p as *const Option<[f32; 7]>).cast());
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = cell;
     }
 }
 
@@ -274,6 +294,10 @@ fn noise_weight(z: f64) -> f64 {
 /// Points summed apart in [`normal_equations`] (their sums are added in order).
 const CHUNK: usize = 4096;
 
+/// Points [`normal_equations`] places before it reads their model samples: enough to cover
+/// a sample's trip from memory.
+const PREFETCH_BLOCK: usize = 32;
+
 /// One Gauss-Newton step's system from [`normal_equations`].
 struct NormalEquations {
     h: Matrix6<f64>,
@@ -307,17 +331,25 @@ fn jacobian(p: &[f64; 3], d: [f64; 3]) -> [f64; 6] {
     ]
 }
 
-/// Adds `w·jᵀj` (upper triangle, row by row) and `w·jᵀr` to the sums.
+/// Row and column of the upper triangle's entries of a 6x6 matrix, row by row.
+const UPPER_ROW: [usize; 21] = [
+    0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 4, 4, 5,
+];
+/// (See [`UPPER_ROW`].)
+const UPPER_COL: [usize; 21] = [
+    0, 1, 2, 3, 4, 5, 1, 2, 3, 4, 5, 2, 3, 4, 5, 3, 4, 5, 4, 5, 5,
+];
+
+/// Adds `w·jᵀj` (upper triangle, row by row) and `w·jᵀr` to the sums: each sum gets
+/// `(w·j[a])·j[b]`, written as one operation over all entries so that it vectorises.
 #[inline]
-fn accumulate(upper: &mut [f64; 21], g: &mut Vector6<f64>, j: &[f64; 6], w: f64, r: f64) {
-    let mut k = 0;
+fn accumulate(upper: &mut [f64; 21], g: &mut [f64; 6], j: &[f64; 6], w: f64, r: f64) {
+    let wa: [f64; 6] = std::array::from_fn(|a| w * j[a]);
+    for k in 0..21 {
+        upper[k] += wa[UPPER_ROW[k]] * j[UPPER_COL[k]];
+    }
     for a in 0..6 {
-        let wa = w * j[a];
-        for b in j.iter().skip(a) {
-            upper[k] += wa * b;
-            k += 1;
-        }
-        g[a] += wa * r;
+        g[a] += wa[a] * r;
     }
 }
 
@@ -358,39 +390,50 @@ fn normal_equations(
     let chunk = |samples: &[Vector3<f64>]| {
         // The upper triangle of JᵀWJ, row by row, summed as numbers (no 6x6 temporaries).
         let mut upper = [0.0f64; 21];
-        let mut g = Vector6::zeros();
+        let mut g = [0.0f64; 6];
         let (mut n_pairs, mut sq) = (0usize, 0.0);
-        for s in samples {
-            let p = [
-                m[(0, 0)] * s.x + m[(0, 1)] * s.y + m[(0, 2)] * s.z + t.x,
-                m[(1, 0)] * s.x + m[(1, 1)] * s.y + m[(1, 2)] * s.z + t.y,
-                m[(2, 0)] * s.x + m[(2, 1)] * s.y + m[(2, 2)] * s.z + t.z,
-            ];
-            let Some(pixel) = model.project(p) else {
-                continue;
-            };
-            let Some(&[qx, qy, qz, nx, ny, nz, noise]) = model.lookup(pixel) else {
-                continue;
-            };
-            let n = [f64::from(nx), f64::from(ny), f64::from(nz)];
-            let d = [
-                p[0] - f64::from(qx),
-                p[1] - f64::from(qy),
-                p[2] - f64::from(qz),
-            ];
-            if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > max_sq {
-                continue;
+        // Points placed a block at a time, their model samples fetched while the block's
+        // other points are placed; then summed in order.
+        let mut placed = [([0.0f64; 3], 0usize); PREFETCH_BLOCK];
+        for block in samples.chunks(PREFETCH_BLOCK) {
+            let mut count = 0;
+            for s in block {
+                let p = [
+                    m[(0, 0)] * s.x + m[(0, 1)] * s.y + m[(0, 2)] * s.z + t.x,
+                    m[(1, 0)] * s.x + m[(1, 1)] * s.y + m[(1, 2)] * s.z + t.y,
+                    m[(2, 0)] * s.x + m[(2, 1)] * s.y + m[(2, 2)] * s.z + t.z,
+                ];
+                let Some(cell) = model.project(p).and_then(|px| model.cell(px)) else {
+                    continue;
+                };
+                model.prefetch(cell);
+                placed[count] = (p, cell);
+                count += 1;
             }
-            let r = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
-            let wn = if noise_weighting {
-                f64::from(noise)
-            } else {
-                1.0
-            };
-            let w = huber_weight(r, wn, huber);
-            accumulate(&mut upper, &mut g, &jacobian(&p, n), w, r);
-            n_pairs += 1;
-            sq += r * r;
+            for &(p, cell) in &placed[..count] {
+                let Some([qx, qy, qz, nx, ny, nz, noise]) = model.points[cell] else {
+                    continue;
+                };
+                let n = [f64::from(nx), f64::from(ny), f64::from(nz)];
+                let d = [
+                    p[0] - f64::from(qx),
+                    p[1] - f64::from(qy),
+                    p[2] - f64::from(qz),
+                ];
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > max_sq {
+                    continue;
+                }
+                let r = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+                let wn = if noise_weighting {
+                    f64::from(noise)
+                } else {
+                    1.0
+                };
+                let w = huber_weight(r, wn, huber);
+                accumulate(&mut upper, &mut g, &jacobian(&p, n), w, r);
+                n_pairs += 1;
+                sq += r * r;
+            }
         }
         let mut h = Matrix6::zeros();
         let mut k = 0;
@@ -403,7 +446,7 @@ fn normal_equations(
         }
         NormalEquations {
             h,
-            g,
+            g: Vector6::from(g),
             pairs: n_pairs,
             sq,
         }

@@ -735,20 +735,31 @@ fn without_keypoints_every_frame_only_the_frames_the_depth_cannot_track_are_dete
     let without = dense.tracking.without_keypoints;
     assert_eq!(dense_calls + without, 24, "{:?}", dense.tracking);
     assert!(without >= 8, "{:?}", dense.tracking);
-    // Keyframes only where keypoints were detected; the same run on threads.
+    // Keyframes only where keypoints were detected; the same run on threads, where the
+    // workers detect the keyframes due by the frame count ahead of tracking (a detection
+    // goes unused when an earlier keyframe moved the due frame on).
     assert!(dense.map.keyframes.len() <= dense_calls);
-    assert_eq!(threaded_calls, dense_calls);
+    let ahead = threaded.tracking.detected_ahead;
+    let unused = threaded.tracking.detected_ahead_unused;
+    assert!(ahead > 0, "{:?}", threaded.tracking);
+    assert_eq!(threaded_calls, dense_calls + unused);
     assert_eq!(threaded.trajectory().poses, dense.trajectory().poses);
+    assert_eq!(dense.tracking.detected_ahead, 0);
     assert!(dense.tracking.lost.is_empty(), "{:?}", dense.tracking);
-    // The report counts them, and says the threaded run's workers detected nothing.
+    // The report counts them, and the detections ahead.
     let dir = tmp_dir("box_without_keypoints");
     let sequence = TumSequence::open(&seq).unwrap();
     let report = write_outputs(&threaded, &sequence, &box_camera(), &config(true), &dir).unwrap();
     assert!(report.threads);
     assert_eq!(report.tracking.without_keypoints, without);
-    assert_eq!(report.feature_workers, 0);
+    assert_eq!(report.feature_workers, config(true).system.feature_workers);
+    assert_eq!(report.tracking.detected_ahead, ahead);
     let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
     let row = format!("| tracked without keypoints (dense alignment alone) | {without} frames |");
+    assert!(md.contains(&row), "{md}");
+    let row = format!(
+        "| keyframe keypoints detected ahead by the feature workers | {ahead} frames, {unused} unused |"
+    );
     assert!(md.contains(&row), "{md}");
     let (e_every, e_dense) = (
         ate(&every, &seq, Alignment::Se3),

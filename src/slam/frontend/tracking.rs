@@ -214,6 +214,13 @@ pub struct TrackingCounters {
     /// with no keypoints detected.
     #[serde(default)]
     pub without_keypoints: usize,
+    /// Frames due to be keyframes by the frame count whose keypoints a feature worker
+    /// detected ahead of tracking ([`Tracker::frame_due_by_count`]) ...
+    #[serde(default)]
+    pub detected_ahead: usize,
+    /// ... of which tracking did not use (an earlier keyframe had moved the due frame on).
+    #[serde(default)]
+    pub detected_ahead_unused: usize,
 }
 
 /// Scales of the image pyramid of monocular tracking by optical flow (640x480 down to 160x120).
@@ -336,6 +343,25 @@ impl Tracker {
             rules.max_frames_depth_tracked
         };
         index.saturating_sub(self.keyframes[reference].frame_index) >= max
+    }
+
+    /// The frame at which the next keyframe is due by the frame count
+    /// (`keyframes.max_frames_depth_tracked` or `max_frames_flow_tracked` after the reference
+    /// keyframe's frame) when frames between keyframes are tracked without keypoints; `None`
+    /// when every frame needs its keypoints or there is no reference keyframe yet. Such a
+    /// frame is declined by [`Self::track_without_keypoints`] whatever its motion, so its
+    /// keypoints can be detected before it is tracked.
+    pub fn frame_due_by_count(&self) -> Option<usize> {
+        if self.needs_keypoints_every_frame() {
+            return None;
+        }
+        let rules = &self.cfg.keyframes;
+        let max = if self.monocular {
+            rules.max_frames_flow_tracked
+        } else {
+            rules.max_frames_depth_tracked
+        };
+        Some(self.keyframes[self.reference?].frame_index + max)
     }
 
     /// Whether the motion rules (`keyframes.max_*`) make frame `index` a keyframe, `since`

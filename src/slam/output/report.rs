@@ -138,6 +138,13 @@ pub struct TrackingReport {
     /// instant to their colour image's.
     #[serde(default)]
     pub colour_instant: usize,
+    /// Keyframes due by the frame count whose keypoints a feature worker detected ahead of
+    /// tracking, and how many of those tracking did not use.
+    #[serde(default)]
+    pub detected_ahead: usize,
+    /// Of `detected_ahead`, the detections tracking did not use.
+    #[serde(default)]
+    pub detected_ahead_unused: usize,
 }
 
 /// Everything `report.json` holds.
@@ -292,6 +299,8 @@ impl Report {
                 dense_rejected: t.dense_rejected,
                 without_keypoints: t.without_keypoints,
                 colour_instant: out.colour_instant,
+                detected_ahead: t.detected_ahead,
+                detected_ahead_unused: t.detected_ahead_unused,
             },
             wall_seconds: out.wall_seconds,
             fps: out.fps(),
@@ -444,6 +453,13 @@ impl Report {
                 self.tracking.without_keypoints
             );
         }
+        if self.tracking.detected_ahead > 0 {
+            let _ = writeln!(
+                s,
+                "| keyframe keypoints detected ahead by the feature workers | {} frames, {} unused |",
+                self.tracking.detected_ahead, self.tracking.detected_ahead_unused
+            );
+        }
         if self.tracking.colour_instant > 0 {
             let _ = writeln!(
                 s,
@@ -582,8 +598,8 @@ impl Report {
         if self.feature_workers > 1 {
             let _ = writeln!(
                 s,
-                "\nThe features stage's time is summed over {} workers that prepared frames \
-                 ahead of tracking.",
+                "\nThe features stage's time is summed over tracking and {} workers that \
+                 prepared frames ahead of it.",
                 self.feature_workers
             );
         }
@@ -729,6 +745,13 @@ impl Report {
                 self.tracking.without_keypoints
             );
         }
+        if self.tracking.detected_ahead > 0 {
+            let _ = writeln!(
+                s,
+                "keyframe keypoints detected ahead by the feature workers: {} frames ({} unused)",
+                self.tracking.detected_ahead, self.tracking.detected_ahead_unused
+            );
+        }
         if self.tracking.colour_instant > 0 {
             let _ = writeln!(
                 s,
@@ -750,7 +773,7 @@ impl Report {
         if self.feature_workers > 1 {
             let _ = writeln!(
                 s,
-                "  (features: time summed over {} workers preparing frames ahead of tracking)",
+                "  (features: time summed over tracking and {} workers preparing frames ahead of it)",
                 self.feature_workers
             );
         }

@@ -15,7 +15,7 @@ use crate::slam::map::KeyframeFeatures;
 use crate::slam::mapping::local_mapper::MapperInput;
 use image::RgbImage;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 /// The frames a run goes over, and how it is told to stop.
@@ -82,6 +82,9 @@ struct Prepared {
     frame: Result<(Loaded, Option<Result<KeyFeatures>>)>,
     load: Duration,
     detect: Duration,
+    /// The keypoints were detected because the frame was due to be a keyframe, not because
+    /// every frame needs them.
+    ahead: bool,
 }
 
 /// Loads frame `i` and, with `detect`, its keypoints.
@@ -104,6 +107,7 @@ fn prepare(
         frame,
         load,
         detect: t.elapsed(),
+        ahead: false,
     }
 }
 
@@ -117,7 +121,11 @@ fn prepare(
 /// `tracking.keypoints_every_frame = false` (RGB-D) keypoints are detected on this thread, and
 /// only for the frames the dense alignment alone cannot track, or (monocular,
 /// `tracking.monocular_flow`) that optical flow cannot follow
-/// ([`Tracker::track_without_keypoints`]).
+/// ([`Tracker::track_without_keypoints`]); with workers, those of the frame at which the next
+/// keyframe is due by the frame count ([`Tracker::frame_due_by_count`]) are detected by a
+/// worker ahead of tracking, as soon as tracking has named that frame (they are the
+/// keypoints tracking would detect, so the trajectory is the same; a keyframe made earlier
+/// can leave them unused).
 pub(super) fn tracking_loop(
     frames: &Frames,
     tracker: Tracker,
@@ -146,6 +154,10 @@ pub(super) fn tracking_loop(
         repeats: RepeatCounts::default(),
     };
     let detect = run.tracker.needs_keypoints_every_frame();
+    // The frame at which the next keyframe is due by the frame count, set by tracking after
+    // each frame. A worker takes frame `i` only once frame `i − 2·workers` is tracked
+    // ([`ordered_map`]), so the due frame is named in time when the count is at least that.
+    let due = AtomicUsize::new(usize::MAX);
     let flow = run.tracker.tracks_by_flow();
     // The last loaded frame's index and image hashes.
     let mut previous: Option<(usize, ImageKeys)> = None;
@@ -179,16 +191,17 @@ pub(super) fn tracking_loop(
         // its pyramid.
         let gray = flow.then(|| rgb_to_gray(&frame.rgb));
         let pyramid = gray.as_ref().map(Tracker::flow_pyramid);
-        let without = match features {
-            Some(_) => None,
-            None => tracker.track_without_keypoints(
-                i,
-                frame.stamp,
-                frame.depth.as_ref(),
-                pyramid.as_ref(),
-            ),
-        };
+        // (It declines every frame when every frame needs its keypoints.)
+        let without =
+            tracker.track_without_keypoints(i, frame.stamp, frame.depth.as_ref(), pyramid.as_ref());
         let mut tracking = t.elapsed();
+        if p.ahead {
+            tracker.counters.detected_ahead += 1;
+            if without.is_some() {
+                tracker.counters.detected_ahead_unused += 1;
+                run.features.add_duration(p.detect);
+            }
+        }
         let out = match without {
             Some(out) => out,
             None => {
@@ -228,6 +241,10 @@ pub(super) fn tracking_loop(
         if let Some(p) = pyramid {
             tracker.keep_image(i, p);
         }
+        due.store(
+            tracker.frame_due_by_count().unwrap_or(usize::MAX),
+            Ordering::SeqCst,
+        );
         run.tracking.add_duration(tracking);
         for e in &out.events {
             log(e);
@@ -253,7 +270,12 @@ pub(super) fn tracking_loop(
         run.frames.push(out.record);
         true
     };
-    let produce = |i: usize| prepare(seq, i, monocular, keypoints, detect);
+    let produce = |i: usize| {
+        let ahead = !detect && workers > 0 && due.load(Ordering::SeqCst) == i;
+        let mut p = prepare(seq, i, monocular, keypoints, detect || ahead);
+        p.ahead = ahead;
+        p
+    };
     let mut stopped = false;
     if workers == 0 {
         for i in 0..n {

@@ -282,7 +282,6 @@ impl Slam {
         } = self;
         let monocular = depth == DepthMode::Predicted;
         let tracker = Tracker::new(config.clone(), camera.clone(), monocular);
-        let detected_ahead = tracker.needs_keypoints_every_frame();
         let n = max_frames.map_or(sequence.len(), |m| m.min(sequence.len()));
         let map: SharedMap = Arc::new(RwLock::new(Map::default()));
         let keypoint_source = keypoints.name();
@@ -392,9 +391,10 @@ impl Slam {
             interrupted: run.interrupted,
             total_frames: n,
             threads: config.system.threads,
-            // Keypoints detected by tracking itself (`tracking.keypoints_every_frame = false`
-            // in RGB-D mode): the workers only load.
-            feature_workers: if config.system.threads && detected_ahead {
+            // The workers load every frame, and detect the keypoints of every frame or (where
+            // the frames between keyframes are tracked without them) of the frames due to be
+            // keyframes.
+            feature_workers: if config.system.threads {
                 config.system.feature_workers
             } else {
                 0

@@ -11,7 +11,7 @@ use crate::geometry::Pose;
 use crate::slam::config::{LabelVoteConfig, MapConfig};
 use crate::slam::map::KeyFrame;
 use nalgebra::Point3;
-use rustc_hash::{FxHashMap, FxHashSet};
+use rustc_hash::FxHashMap;
 
 /// The accumulated observations of one voxel.
 #[derive(Debug, Clone)]
@@ -28,6 +28,8 @@ pub struct Voxel {
     pub void: u16,
     /// Keyframes with at least one observation in the voxel.
     pub views: u16,
+    /// The last fusion (or de-fusion) of a keyframe that counted it in `views`.
+    stamp: u32,
 }
 
 impl Default for Voxel {
@@ -39,6 +41,7 @@ impl Default for Voxel {
             votes: [0; classes::NUM_CLASSES],
             void: 0,
             views: 0,
+            stamp: 0,
         }
     }
 }
@@ -86,6 +89,8 @@ pub struct SemanticMap {
     /// Occupied voxels by integer index (`floor(position / voxel_size)`).
     pub voxels: FxHashMap<[i32; 3], Voxel>,
     rays: Option<RayTable>,
+    /// Fusions and de-fusions so far: each voxel's `stamp` says which last counted it.
+    epoch: u32,
 }
 
 impl SemanticMap {
@@ -95,6 +100,7 @@ impl SemanticMap {
             voxel_size,
             voxels: FxHashMap::default(),
             rays: None,
+            epoch: 0,
         }
     }
 
@@ -134,7 +140,11 @@ impl SemanticMap {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             return;
         }
-        let key = self.key(p);
+        self.insert_at(self.key(p), p, rgb, label);
+    }
+
+    /// [`Self::insert`] into the voxel `key`; returns it.
+    fn insert_at(&mut self, key: [i32; 3], p: &Point3<f64>, rgb: [u8; 3], label: u8) -> &mut Voxel {
         let v = self.voxels.entry(key).or_default();
         for a in 0..3 {
             v.sum[a] += p[a];
@@ -145,6 +155,7 @@ impl SemanticMap {
             l if l < classes::NUM_CLASSES => v.votes[l] = v.votes[l].saturating_add(1),
             _ => v.void = v.void.saturating_add(1),
         }
+        v
     }
 
     /// Takes back one observation made by [`Self::insert`] with the same arguments; a voxel
@@ -153,14 +164,26 @@ impl SemanticMap {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             return;
         }
-        let key = self.key(p);
-        let Some(v) = self.voxels.get_mut(&key) else {
-            return;
+        self.remove_at(self.key(p), p, rgb, label);
+    }
+
+    /// [`Self::remove`] from the voxel `key`; returns it unless it is gone (or was not there).
+    fn remove_at(
+        &mut self,
+        key: [i32; 3],
+        p: &Point3<f64>,
+        rgb: [u8; 3],
+        label: u8,
+    ) -> Option<&mut Voxel> {
+        use std::collections::hash_map::Entry;
+        let v = match self.voxels.entry(key) {
+            Entry::Vacant(_) => return None,
+            Entry::Occupied(o) if o.get().count <= 1 => {
+                o.remove();
+                return None;
+            }
+            Entry::Occupied(o) => o.into_mut(),
         };
-        if v.count <= 1 {
-            self.voxels.remove(&key);
-            return;
-        }
         for a in 0..3 {
             v.sum[a] -= p[a];
             v.rgb[a] = v.rgb[a].saturating_sub(rgb[a] as u32);
@@ -170,6 +193,7 @@ impl SemanticMap {
             l if l < classes::NUM_CLASSES => v.votes[l] = v.votes[l].saturating_sub(1),
             _ => v.void = v.void.saturating_sub(1),
         }
+        Some(v)
     }
 
     /// Fuses a keyframe's view at `pose`, its depth multiplied by `depth_scale`.
@@ -181,12 +205,20 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        let keys = self.integrate(kf, pose, depth_scale, camera, cfg, Self::insert);
-        for key in keys {
-            if let Some(v) = self.voxels.get_mut(&key) {
-                v.views = v.views.saturating_add(1);
-            }
-        }
+        self.integrate(
+            kf,
+            pose,
+            depth_scale,
+            camera,
+            cfg,
+            |m, key, p, rgb, label, epoch| {
+                let v = m.insert_at(key, p, rgb, label);
+                if v.stamp != epoch {
+                    v.stamp = epoch;
+                    v.views = v.views.saturating_add(1);
+                }
+            },
+        );
     }
 
     /// Takes back what [`Self::fuse`] added with the same pose and depth scale (voxel
@@ -199,15 +231,26 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        let keys = self.integrate(kf, pose, depth_scale, camera, cfg, Self::remove);
-        for key in keys {
-            if let Some(v) = self.voxels.get_mut(&key) {
-                v.views = v.views.saturating_sub(1);
-            }
-        }
+        self.integrate(
+            kf,
+            pose,
+            depth_scale,
+            camera,
+            cfg,
+            |m, key, p, rgb, label, epoch| {
+                // A voxel the keyframe empties is gone; one it leaves loses the keyframe's view.
+                if let Some(v) = m.remove_at(key, p, rgb, label)
+                    && v.stamp != epoch
+                {
+                    v.stamp = epoch;
+                    v.views = v.views.saturating_sub(1);
+                }
+            },
+        );
     }
 
-    /// Applies `op` to every fused pixel of the keyframe; returns the voxels it touched.
+    /// Applies `op` to every fused pixel of the keyframe, with the pixel's voxel and this
+    /// integration's epoch (a voxel whose stamp differs is the first time touched by it).
     fn integrate(
         &mut self,
         kf: &KeyFrame,
@@ -215,9 +258,10 @@ impl SemanticMap {
         depth_scale: f64,
         camera: &Camera,
         cfg: &MapConfig,
-        mut op: impl FnMut(&mut Self, &Point3<f64>, [u8; 3], u8),
-    ) -> FxHashSet<[i32; 3]> {
-        let mut touched = FxHashSet::default();
+        mut op: impl FnMut(&mut Self, [i32; 3], &Point3<f64>, [u8; 3], u8, u32),
+    ) {
+        self.epoch = self.epoch.wrapping_add(1).max(1);
+        let epoch = self.epoch;
         let view = &kf.view;
         let stale = self.rays.as_ref().is_none_or(|r| {
             r.stride != view.stride || (r.width, r.height) != (view.depth.width, view.depth.height)
@@ -226,7 +270,7 @@ impl SemanticMap {
             self.rays = Some(RayTable::new(camera, view.stride));
         }
         let Some(rays) = self.rays.take() else {
-            return touched;
+            return;
         };
         if (rays.width, rays.height) == (view.depth.width, view.depth.height) {
             for (i, ray) in rays.rays.iter().enumerate() {
@@ -240,12 +284,10 @@ impl SemanticMap {
                 }
                 let (x, y) = (i as u32 % rays.width, i as u32 / rays.width);
                 let c = view.rgb.get_pixel(x, y).0;
-                op(self, &p, c, view.labels.data[i]);
-                touched.insert(self.key(&p));
+                op(self, self.key(&p), &p, c, view.labels.data[i], epoch);
             }
         }
         self.rays = Some(rays);
-        touched
     }
 
     /// Map points (voxel means) of the voxels seen by at least `min_views` keyframes

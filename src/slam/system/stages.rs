@@ -123,17 +123,34 @@ pub(super) fn run_threaded(
         // stop request (Ctrl-C) takes effect at once.
         let (ev_tx, ev_rx) = sync_channel::<(FrameRecord, Progress)>(2);
         let mapping = s.spawn(move || {
-            for input in kf_rx {
-                let id = input.keyframe.id;
-                let track = mapper.process(input);
-                if monocular && reply_tx.send(track).is_err() {
-                    break;
+            let run = || {
+                for input in kf_rx {
+                    let id = input.keyframe.id;
+                    let track = mapper.process(input);
+                    if monocular && reply_tx.send(track).is_err() {
+                        break;
+                    }
+                    if corr_tx.send(id).is_err() {
+                        break;
+                    }
                 }
-                if corr_tx.send(id).is_err() {
-                    break;
-                }
+                mapper
+            };
+            // RGB-D: mapping runs beside tracking and the feature workers on a pool of its own
+            // with half the machine's threads (one on two cores), as each worker does, rather
+            // than splitting every SDFCNN layer over threads that are busy elsewhere
+            // (lab/notes/cpu-speed.md). Monocular tracking waits for each keyframe's mapping,
+            // so that keeps every thread.
+            let own = (!monocular)
+                .then(|| {
+                    let threads = (rayon::current_num_threads() / 2).max(1);
+                    rayon::ThreadPoolBuilder::new().num_threads(threads).build().ok()
+                })
+                .flatten();
+            match own {
+                Some(pool) => pool.install(run),
+                None => run(),
             }
-            mapper
         });
         let map_c = map.clone();
         let correcting = s.spawn(move || {

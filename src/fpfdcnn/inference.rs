@@ -11,7 +11,7 @@ use super::model::Fpfdcnn;
 use super::packed::PackedFpfdcnn;
 use crate::error::{Error, Result};
 use crate::nn::weights::load_into;
-use crate::nn::{BackendKind, sample_bilinear_at};
+use crate::nn::{BackendKind, sample_bilinear_at_nhwc};
 use crate::raster::MAX_BLUR_SIGMA;
 use crate::training::resolve_checkpoint;
 use burn::prelude::*;
@@ -260,7 +260,8 @@ pub(crate) fn select_keypoints(
             }
         }
     }
-    cand.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    // A total order (the indices differ): the unstable sort gives the stable one's order.
+    cand.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     let mut suppressed = vec![false; width * height];
     let r = cfg.nms_radius as isize;
     let mut out = Vec::new();
@@ -285,7 +286,8 @@ pub(crate) fn select_keypoints(
     out
 }
 
-/// The coarse descriptor map of one pass: row-major values and `[dim, h / cell, w / cell]`.
+/// The coarse descriptor map of one pass: row-major values, channels last
+/// (`[h / cell, w / cell, dim]`), and `[dim, h / cell, w / cell]`.
 type NetworkDescriptors = (Vec<f32>, [usize; 3]);
 
 /// A loaded FPFDCNN ready to detect and describe keypoints.
@@ -392,7 +394,7 @@ impl FpfdcnnDetector {
 
     /// The network on `gray` placed at `(ox, oy)` in a zero image whose sides are multiples
     /// of the cell: the FP map cropped back to `gray`'s pixels, the coarse descriptor map
-    /// (`[dim, hp / cell, wp / cell]`, row-major) and the padded size `[hp, wp]`.
+    /// ([`NetworkDescriptors`], channels last) and the padded size `[hp, wp]`.
     fn run_network(
         &self,
         gray: &GrayImage,
@@ -426,10 +428,16 @@ impl FpfdcnnDetector {
                         .map_err(|e| Error::msg(format!("reading {what}: {e:?}")))
                 };
                 let [_, d, hc, wc] = out.descriptors.dims();
-                (
-                    read(out.prob, "FP map")?,
-                    (read(out.descriptors, "descriptors")?, [d, hc, wc]),
-                )
+                // Channels last, as the packed network gives them.
+                let planar = read(out.descriptors, "descriptors")?;
+                let plane = hc * wc;
+                let mut last = vec![0.0f32; planar.len()];
+                for (ch, values) in planar.chunks_exact(plane.max(1)).enumerate() {
+                    for (i, &v) in values.iter().enumerate() {
+                        last[i * d + ch] = v;
+                    }
+                }
+                (read(out.prob, "FP map")?, (last, [d, hc, wc]))
             }
         };
         // Keypoints inside the original image only.
@@ -491,14 +499,14 @@ impl FpfdcnnDetector {
             )?;
             normalise_rows(&mut descriptors, dim);
         } else if !points.is_empty() {
-            descriptors = sample_bilinear_at(&map, [dim, hc, wc], [hp, wp], &points)
+            descriptors = sample_bilinear_at_nhwc(&map, [dim, hc, wc], [hp, wp], &points)
                 .map_err(super::FpfdcnnError::from)?;
             if !other_placements.is_empty() {
                 normalise_rows(&mut descriptors, dim);
                 for ([ox, oy], (m, dims), size) in &other_placements {
                     let at: Vec<(usize, usize)> =
                         points.iter().map(|&(x, y)| (x + ox, y + oy)).collect();
-                    let mut d = sample_bilinear_at(m, *dims, *size, &at)
+                    let mut d = sample_bilinear_at_nhwc(m, *dims, *size, &at)
                         .map_err(super::FpfdcnnError::from)?;
                     normalise_rows(&mut d, dim);
                     descriptors.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
@@ -539,7 +547,8 @@ fn sample_spread(
                 )
             })
             .collect();
-        let mut d = sample_bilinear_at(map, dims, size, &at).map_err(super::FpfdcnnError::from)?;
+        let mut d =
+            sample_bilinear_at_nhwc(map, dims, size, &at).map_err(super::FpfdcnnError::from)?;
         normalise_rows(&mut d, dim);
         sum.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
     }
@@ -750,7 +759,7 @@ mod tests {
                 .iter()
                 .map(|&(x, y)| (x + shift[0], y + shift[1]))
                 .collect();
-            let mut d = sample_bilinear_at(&map, dims, size, &at).unwrap();
+            let mut d = sample_bilinear_at_nhwc(&map, dims, size, &at).unwrap();
             normalise_rows(&mut d, 8);
             expected.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
         }
@@ -798,7 +807,7 @@ mod tests {
                 .any(|&(x, y)| x < 6 || y < 6 || x > 41 || y > 33)
         );
         let (_, (map, dims), size) = det.run_network(&img, [0, 0]).unwrap();
-        let plain_expected = sample_bilinear_at(&map, dims, size, &points).unwrap();
+        let plain_expected = sample_bilinear_at_nhwc(&map, dims, size, &points).unwrap();
         let mut plain_expected = plain_expected;
         normalise_rows(&mut plain_expected, 8);
         assert_eq!(plain.descriptors, plain_expected);
@@ -813,7 +822,7 @@ mod tests {
                     )
                 })
                 .collect();
-            let mut d = sample_bilinear_at(&map, dims, size, &at).unwrap();
+            let mut d = sample_bilinear_at_nhwc(&map, dims, size, &at).unwrap();
             normalise_rows(&mut d, 8);
             expected.iter_mut().zip(&d).for_each(|(a, b)| *a += b);
         }

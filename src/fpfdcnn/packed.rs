@@ -4,7 +4,7 @@
 //! and the detector use it on the CPU backends; GPUs keep Burn's kernels.
 
 use super::model::{Fpfdcnn, FpfdcnnError};
-use crate::nn::packed_conv::{Activation, NhwcView, PackError, PackedConv, Scratch, to_nchw};
+use crate::nn::packed_conv::{Activation, NhwcView, PackError, PackedConv, Scratch};
 use std::sync::Mutex;
 
 /// The output of one image.
@@ -12,7 +12,8 @@ use std::sync::Mutex;
 pub struct PackedOutput {
     /// The FP probability map, row-major `[h, w]` (after the pixel shuffle).
     pub prob: Vec<f32>,
-    /// The coarse descriptor map, row-major `[dim, h / cell, w / cell]` (before FD).
+    /// The coarse descriptor map (before FD), row-major and channels last:
+    /// `[h / cell, w / cell, dim]`, as [`crate::nn::sample_bilinear_at_nhwc`] reads it.
     pub descriptors: Vec<f32>,
     /// `[dim, h / cell, w / cell]`.
     pub descriptor_dims: [usize; 3],
@@ -123,7 +124,7 @@ impl PackedFpfdcnn {
         Ok(PackedOutput {
             prob,
             descriptor_dims: [desc.c, desc.h, desc.w],
-            descriptors: to_nchw(&desc),
+            descriptors: desc.to_owned().data,
         })
     }
 }
@@ -161,7 +162,15 @@ mod tests {
             let vec = |t: Tensor<4>| t.into_data().try_into_vec::<f32>().unwrap();
             close(&got.prob, &vec(want.prob), "probability map");
             assert_eq!(got.descriptor_dims, [256, 3, 4]);
-            close(&got.descriptors, &vec(want.descriptors), "descriptors");
+            let nhwc = NhwcView {
+                h: 3,
+                w: 4,
+                c: 256,
+                stride: 4,
+                data: &got.descriptors,
+            };
+            let nchw = crate::nn::nhwc::to_nchw(&nhwc);
+            close(&nchw, &vec(want.descriptors), "descriptors");
         }
     }
 

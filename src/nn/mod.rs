@@ -35,7 +35,9 @@ pub use params::trainable_params;
 pub use pool::max_pool2d;
 pub use reduce::sum_all;
 pub use relu6_kernel::relu6;
-pub use resize::{SampleError, resize_bilinear, sample_bilinear_at, taps_at};
+pub use resize::{
+    SampleError, resize_bilinear, sample_bilinear_at, sample_bilinear_at_nhwc, taps_at,
+};
 pub use shuffle::{pixel_shuffle, pixel_unshuffle};
 pub use trace::ShapeTrace;
 

@@ -320,7 +320,8 @@ pub fn from_nchw(data: &[f32], [c, h, w]: [usize; 3]) -> Nhwc {
     out
 }
 
-/// `x` as a row-major `[c, h, w]` vector.
+/// `x` as a row-major `[c, h, w]` vector (the tests' bridge to Burn's layout).
+#[cfg(test)]
 pub fn to_nchw(x: &NhwcView) -> Vec<f32> {
     let plane = x.h * x.w;
     let mut out = vec![0.0; x.c * plane];

@@ -27,7 +27,7 @@ use rayon::prelude::*;
 
 #[cfg(test)]
 use super::nhwc::from_nchw;
-pub use super::nhwc::{Activation, Nhwc, NhwcView, activate, to_nchw};
+pub use super::nhwc::{Activation, Nhwc, NhwcView, activate};
 
 /// Below this depth (k·c) per kernel row, one product over an im2col of all taps is faster.
 const SMALL_K: usize = 32;
@@ -563,6 +563,7 @@ fn space_to_depth_padded(x: &NhwcView, p: usize, sw: usize, dst: &mut [f32]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nn::nhwc::to_nchw;
     use burn::nn::PaddingConfig2d;
     use burn::nn::conv::Conv2dConfig;
     use rand::{RngExt, SeedableRng};

@@ -226,6 +226,67 @@ pub fn sample_bilinear_at(
     Ok(out)
 }
 
+/// [`sample_bilinear_at`] of a map stored channels last (`map[(y·map_w + x)·channels + c]`,
+/// `dims` still `[channels, map_h, map_w]`): the same values bit for bit, each tap's
+/// channels read as one contiguous row.
+pub fn sample_bilinear_at_nhwc(
+    map: &[f32],
+    [channels, map_h, map_w]: [usize; 3],
+    [height, width]: [usize; 2],
+    points: &[(usize, usize)],
+) -> Result<Vec<f32>, SampleError> {
+    if map.len() != channels * map_h * map_w {
+        return Err(SampleError::MapSize {
+            len: map.len(),
+            channels,
+            height: map_h,
+            width: map_w,
+        });
+    }
+    if map_h == 0 || map_w == 0 || height == 0 || width == 0 {
+        return Err(SampleError::Empty);
+    }
+    let mut out = vec![0.0f32; points.len() * channels];
+    for (&(x, y), o) in points.iter().zip(out.chunks_exact_mut(channels.max(1))) {
+        if x >= width || y >= height {
+            return Err(SampleError::PointOutside {
+                x,
+                y,
+                width,
+                height,
+            });
+        }
+        let ty = taps(y, map_h, height);
+        let tx = taps(x, map_w, width);
+        let px = |row: usize, col: usize| &map[(row * map_w + col) * channels..][..channels];
+        blend_taps(
+            o,
+            [
+                px(ty.i0, tx.i0),
+                px(ty.i0, tx.i1),
+                px(ty.i1, tx.i0),
+                px(ty.i1, tx.i1),
+            ],
+            [tx.w0, tx.w1, ty.w0, ty.w1],
+        );
+    }
+    Ok(out)
+}
+
+crate::nn::nhwc::simd_fn! {
+    /// `out = ty0·(tx0·p00 + tx1·p01) + ty1·(tx0·p10 + tx1·p11)` channel by channel (the
+    /// order of [`sample_bilinear_at`]).
+    fn blend_taps(out: &mut [f32], taps: [&[f32]; 4], weights: [f32; 4]) {
+        let [p00, p01, p10, p11] = taps;
+        let [tx0, tx1, ty0, ty1] = weights;
+        for ((((o, &a0), &a1), &b0), &b1) in out.iter_mut().zip(p00).zip(p01).zip(p10).zip(p11) {
+            let a = tx0 * a0 + tx1 * a1;
+            let b = tx0 * b0 + tx1 * b1;
+            *o = ty0 * a + ty1 * b;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -394,6 +455,28 @@ mod tests {
         );
         assert!(matches!(
             sample_bilinear_at(&map_host[1..], [c, mh, mw], [h, w], &[]),
+            Err(SampleError::MapSize { .. })
+        ));
+        // Channels last: the same values bit for bit, the same errors.
+        let mut last = vec![0.0f32; map_host.len()];
+        for (i, &v) in map_host.iter().enumerate() {
+            let (ch, px) = (i / (mh * mw), i % (mh * mw));
+            last[px * c + ch] = v;
+        }
+        let nhwc =
+            |m: &[f32], p: &[(usize, usize)]| sample_bilinear_at_nhwc(m, [c, mh, mw], [h, w], p);
+        assert_eq!(nhwc(&last, &points), Ok(got));
+        assert_eq!(
+            nhwc(&last, &[(0, h)]),
+            Err(SampleError::PointOutside {
+                x: 0,
+                y: h,
+                width: w,
+                height: h
+            })
+        );
+        assert!(matches!(
+            nhwc(&last[1..], &[]),
             Err(SampleError::MapSize { .. })
         ));
     }

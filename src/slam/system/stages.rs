@@ -144,7 +144,10 @@ pub(super) fn run_threaded(
             let own = (!monocular)
                 .then(|| {
                     let threads = (rayon::current_num_threads() / 2).max(1);
-                    rayon::ThreadPoolBuilder::new().num_threads(threads).build().ok()
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .ok()
                 })
                 .flatten();
             match own {

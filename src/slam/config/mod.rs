@@ -753,9 +753,10 @@ pub struct SystemConfig {
     /// Capacity of the channels between threads (back-pressure on tracking).
     pub queue: usize,
     /// With `threads`: threads that load frames ahead of tracking and, where every frame needs
-    /// its keypoints (monocular, `tracking.keypoints_every_frame`), detect them, each running
-    /// the keypoint network on its share of the cores (0: on the tracking thread, the network
-    /// on all cores).
+    /// its keypoints (monocular, `tracking.keypoints_every_frame`), detect them, else those of
+    /// the frame at which the next keyframe is due by the frame count, each running the
+    /// keypoint network on its share of the cores (0: on the tracking thread, the network on
+    /// all cores).
     pub feature_workers: usize,
     /// Distance from the true surface within which a map point counts as
     /// correctly placed (Table 11 "position accuracy"), metres.

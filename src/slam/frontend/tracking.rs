@@ -214,8 +214,9 @@ pub struct TrackingCounters {
     /// with no keypoints detected.
     #[serde(default)]
     pub without_keypoints: usize,
-    /// Frames due to be keyframes by the frame count whose keypoints a feature worker
-    /// detected ahead of tracking ([`Tracker::frame_due_by_count`]) ...
+    /// Frames due to be keyframes by the frame count (`keyframes.max_frames_depth_tracked` or
+    /// `max_frames_flow_tracked` after the reference keyframe) whose keypoints a feature
+    /// worker detected ahead of tracking ...
     #[serde(default)]
     pub detected_ahead: usize,
     /// ... of which tracking did not use (an earlier keyframe had moved the due frame on).

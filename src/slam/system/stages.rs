@@ -97,6 +97,23 @@ impl CorrectionStage {
     }
 }
 
+/// RGB-D: the rayon pool mapping and correction each run on, with half the machine's threads
+/// (one on two cores), as each feature worker has: beside tracking and the workers they would
+/// otherwise split every SDFCNN layer and keyframe alignment over threads busy elsewhere (on
+/// two cores, 7-Scenes 0-299: the semantics stage 5.6-5.9 -> 4.1-4.4 s, correction 2.9-3.3 ->
+/// 2.6-2.7 s, the same maps; lab/notes/cpu-speed.md). Monocular tracking waits for each
+/// keyframe's mapping, so there they keep every thread (`None`).
+fn stage_pool(monocular: bool) -> Option<rayon::ThreadPool> {
+    if monocular {
+        return None;
+    }
+    let threads = (rayon::current_num_threads() / 2).max(1);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .ok()
+}
+
 /// Tracking, mapping and correction as three threads passing messages, with frames
 /// prepared by `workers` threads ahead of tracking; frame events reach `notify` on the
 /// calling thread.
@@ -136,31 +153,23 @@ pub(super) fn run_threaded(
                 }
                 mapper
             };
-            // RGB-D: mapping runs beside tracking and the feature workers on a pool of its own
-            // with half the machine's threads (one on two cores), as each worker does, rather
-            // than splitting every SDFCNN layer over threads that are busy elsewhere
-            // (lab/notes/cpu-speed.md). Monocular tracking waits for each keyframe's mapping,
-            // so that keeps every thread.
-            let own = (!monocular)
-                .then(|| {
-                    let threads = (rayon::current_num_threads() / 2).max(1);
-                    rayon::ThreadPoolBuilder::new()
-                        .num_threads(threads)
-                        .build()
-                        .ok()
-                })
-                .flatten();
-            match own {
+            match stage_pool(monocular) {
                 Some(pool) => pool.install(run),
                 None => run(),
             }
         });
         let map_c = map.clone();
         let correcting = s.spawn(move || {
-            for id in corr_rx {
-                correction.add_keyframe(&map_c, id);
+            let run = || {
+                for id in corr_rx {
+                    correction.add_keyframe(&map_c, id);
+                }
+                correction
+            };
+            match stage_pool(monocular) {
+                Some(pool) => pool.install(run),
+                None => run(),
             }
-            correction
         });
         let tracking = s.spawn(move || {
             tracking_loop(

@@ -187,34 +187,15 @@ pub enum SampleError {
 /// values, row-major.
 pub fn sample_bilinear_at(
     map: &[f32],
-    [channels, map_h, map_w]: [usize; 3],
-    [height, width]: [usize; 2],
+    dims: [usize; 3],
+    full: [usize; 2],
     points: &[(usize, usize)],
 ) -> Result<Vec<f32>, SampleError> {
-    if map.len() != channels * map_h * map_w {
-        return Err(SampleError::MapSize {
-            len: map.len(),
-            channels,
-            height: map_h,
-            width: map_w,
-        });
-    }
-    if map_h == 0 || map_w == 0 || height == 0 || width == 0 {
-        return Err(SampleError::Empty);
-    }
+    let taps = point_taps(map.len(), dims, full, points)?;
+    let [channels, map_h, map_w] = dims;
     let plane = map_h * map_w;
     let mut out = Vec::with_capacity(points.len() * channels);
-    for &(x, y) in points {
-        if x >= width || y >= height {
-            return Err(SampleError::PointOutside {
-                x,
-                y,
-                width,
-                height,
-            });
-        }
-        let ty = taps(y, map_h, height);
-        let tx = taps(x, map_w, width);
+    for (ty, tx) in taps {
         let (r0, r1) = (ty.i0 * map_w, ty.i1 * map_w);
         for ch in map.chunks_exact(plane) {
             // Same order as `resize_bilinear` (columns first, then rows).
@@ -231,33 +212,17 @@ pub fn sample_bilinear_at(
 /// channels read as one contiguous row.
 pub fn sample_bilinear_at_nhwc(
     map: &[f32],
-    [channels, map_h, map_w]: [usize; 3],
-    [height, width]: [usize; 2],
+    dims: [usize; 3],
+    full: [usize; 2],
     points: &[(usize, usize)],
 ) -> Result<Vec<f32>, SampleError> {
-    if map.len() != channels * map_h * map_w {
-        return Err(SampleError::MapSize {
-            len: map.len(),
-            channels,
-            height: map_h,
-            width: map_w,
-        });
-    }
-    if map_h == 0 || map_w == 0 || height == 0 || width == 0 {
-        return Err(SampleError::Empty);
-    }
+    let taps = point_taps(map.len(), dims, full, points)?;
+    let [channels, _, map_w] = dims;
     let mut out = vec![0.0f32; points.len() * channels];
-    for (&(x, y), o) in points.iter().zip(out.chunks_exact_mut(channels.max(1))) {
-        if x >= width || y >= height {
-            return Err(SampleError::PointOutside {
-                x,
-                y,
-                width,
-                height,
-            });
-        }
-        let ty = taps(y, map_h, height);
-        let tx = taps(x, map_w, width);
+    if channels == 0 {
+        return Ok(out);
+    }
+    for ((ty, tx), o) in taps.into_iter().zip(out.chunks_exact_mut(channels)) {
         let px = |row: usize, col: usize| &map[(row * map_w + col) * channels..][..channels];
         blend_taps(
             o,
@@ -271,6 +236,41 @@ pub fn sample_bilinear_at_nhwc(
         );
     }
     Ok(out)
+}
+
+/// The row and column taps of each point for the two samplers above, after checking the map's
+/// size and that every point lies in the `[height, width]` image.
+fn point_taps(
+    len: usize,
+    [channels, map_h, map_w]: [usize; 3],
+    [height, width]: [usize; 2],
+    points: &[(usize, usize)],
+) -> Result<Vec<(Taps, Taps)>, SampleError> {
+    if len != channels * map_h * map_w {
+        return Err(SampleError::MapSize {
+            len,
+            channels,
+            height: map_h,
+            width: map_w,
+        });
+    }
+    if map_h == 0 || map_w == 0 || height == 0 || width == 0 {
+        return Err(SampleError::Empty);
+    }
+    points
+        .iter()
+        .map(|&(x, y)| {
+            if x >= width || y >= height {
+                return Err(SampleError::PointOutside {
+                    x,
+                    y,
+                    width,
+                    height,
+                });
+            }
+            Ok((taps(y, map_h, height), taps(x, map_w, width)))
+        })
+        .collect()
 }
 
 crate::nn::nhwc::simd_fn! {

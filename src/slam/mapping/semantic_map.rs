@@ -205,20 +205,7 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        self.integrate(
-            kf,
-            pose,
-            depth_scale,
-            camera,
-            cfg,
-            |m, key, p, rgb, label, epoch| {
-                let v = m.insert_at(key, p, rgb, label);
-                if v.stamp != epoch {
-                    v.stamp = epoch;
-                    v.views = v.views.saturating_add(1);
-                }
-            },
-        );
+        self.integrate(kf, pose, depth_scale, camera, cfg, true);
     }
 
     /// Takes back what [`Self::fuse`] added with the same pose and depth scale (voxel
@@ -231,26 +218,12 @@ impl SemanticMap {
         camera: &Camera,
         cfg: &MapConfig,
     ) {
-        self.integrate(
-            kf,
-            pose,
-            depth_scale,
-            camera,
-            cfg,
-            |m, key, p, rgb, label, epoch| {
-                // A voxel the keyframe empties is gone; one it leaves loses the keyframe's view.
-                if let Some(v) = m.remove_at(key, p, rgb, label)
-                    && v.stamp != epoch
-                {
-                    v.stamp = epoch;
-                    v.views = v.views.saturating_sub(1);
-                }
-            },
-        );
+        self.integrate(kf, pose, depth_scale, camera, cfg, false);
     }
 
-    /// Applies `op` to every fused pixel of the keyframe, with the pixel's voxel and this
-    /// integration's epoch (a voxel whose stamp differs is the first time touched by it).
+    /// Adds (`adding`) or takes back every fused pixel of the keyframe; each voxel it touches
+    /// gains or loses the keyframe's view once (a voxel whose stamp is not this integration's
+    /// epoch is touched for the first time; a voxel the keyframe empties is gone).
     fn integrate(
         &mut self,
         kf: &KeyFrame,
@@ -258,7 +231,7 @@ impl SemanticMap {
         depth_scale: f64,
         camera: &Camera,
         cfg: &MapConfig,
-        mut op: impl FnMut(&mut Self, [i32; 3], &Point3<f64>, [u8; 3], u8, u32),
+        adding: bool,
     ) {
         self.epoch = self.epoch.wrapping_add(1).max(1);
         let epoch = self.epoch;
@@ -284,7 +257,22 @@ impl SemanticMap {
                 }
                 let (x, y) = (i as u32 % rays.width, i as u32 / rays.width);
                 let c = view.rgb.get_pixel(x, y).0;
-                op(self, self.key(&p), &p, c, view.labels.data[i], epoch);
+                let (key, label) = (self.key(&p), view.labels.data[i]);
+                let voxel = if adding {
+                    Some(self.insert_at(key, &p, c, label))
+                } else {
+                    self.remove_at(key, &p, c, label)
+                };
+                if let Some(v) = voxel
+                    && v.stamp != epoch
+                {
+                    v.stamp = epoch;
+                    v.views = if adding {
+                        v.views.saturating_add(1)
+                    } else {
+                        v.views.saturating_sub(1)
+                    };
+                }
             }
         }
         self.rays = Some(rays);

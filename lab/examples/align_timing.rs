@@ -42,6 +42,10 @@ fn main() -> anyhow::Result<()> {
             checksum += a.inliers as f64 + a.rms;
         }
     }
+    anyhow::ensure!(
+        !times.is_empty(),
+        "no frame pair {gap} apart with depth among the first {n} frames"
+    );
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]

@@ -32,6 +32,7 @@ fn main() -> anyhow::Result<()> {
     let frames: Vec<_> = (0..n.min(seq.frames.len()))
         .map(|i| seq.load_frame(i))
         .collect::<Result<_, _>>()?;
+    anyhow::ensure!(!frames.is_empty(), "no frames to time ({usage})");
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     for (name, single) in [("global pool", false), ("one thread", true)] {
         let (mut s, mut f) = (Vec::new(), Vec::new());

@@ -17,6 +17,7 @@
 use crate::camera::Camera;
 use crate::dataset::DepthImage;
 use crate::geometry::Pose;
+use crate::nn::nhwc::simd_fn;
 use crate::slam::config::MultiviewConfig;
 use image::RgbImage;
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
@@ -53,6 +54,7 @@ impl GrayView {
     }
 
     /// Bilinear sample; the caller keeps `(x, y)` inside `[0, w - 1) x [0, h - 1)`.
+    #[inline(always)]
     fn bilinear(&self, x: f32, y: f32) -> f32 {
         let (x0, y0) = (x as usize, y as usize);
         let (ax, ay) = (x - x0 as f32, y - y0 as f32);
@@ -135,7 +137,7 @@ pub fn sweep_depth(
             if fy < reach || fy + reach >= target.height {
                 return (row, sum);
             }
-            let mut scratch = Scratch::new(s.steps, rays.len());
+            let mut scratch = Scratch::new(s.steps, s.range, rays.len());
             let predicted_row = &predicted.data[y * w..(y + 1) * w];
             for (x, (out, &d)) in row.iter_mut().zip(predicted_row).enumerate() {
                 let fx = x * st;
@@ -173,22 +175,34 @@ struct Scratch {
     costs: Vec<f32>,
     counts: Vec<u32>,
     usable: Vec<bool>,
+    /// The NCC of hypothesis `i` in reference `k` at `i·refs + k`.
+    scores: Vec<f32>,
+    /// [`factor`] of each whole hypothesis.
+    factors: Vec<f64>,
 }
 
 impl Scratch {
-    fn new(steps: usize, refs: usize) -> Self {
+    fn new(steps: usize, range: f64, refs: usize) -> Self {
         Scratch {
             patch: Vec::new(),
             costs: vec![0.0; steps],
             counts: vec![0; steps],
             usable: vec![false; refs],
+            scores: vec![0.0; steps * refs],
+            factors: (0..steps).map(|i| factor(i as f64, steps, range)).collect(),
         }
     }
 }
 
+/// Hypothesis `i` (fractional) of `steps` over the predicted depth, log-spaced over
+/// `e^(±range)`.
+fn factor(i: f64, steps: usize, range: f64) -> f64 {
+    (range * (2.0 * i / (steps - 1) as f64 - 1.0)).exp()
+}
+
 /// Depth of hypothesis `i` (fractional) of `steps`, log-spaced over `d·e^(±range)`.
 fn hypothesis(d: f64, i: f64, steps: usize, range: f64) -> f64 {
-    d * (range * (2.0 * i / (steps - 1) as f64 - 1.0)).exp()
+    d * factor(i, steps, range)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -238,10 +252,7 @@ fn sweep_pixel(
             .then_some(v)
     };
     // References that see both ends of the range, with parallax.
-    let (near, far) = (
-        hypothesis(d, 0.0, s.steps, s.range),
-        hypothesis(d, (s.steps - 1) as f64, s.steps, s.range),
-    );
+    let (near, far) = (d * sc.factors[0], d * sc.factors[s.steps - 1]);
     let mut any = false;
     for (k, rr) in rays.iter().enumerate() {
         sc.usable[k] = match (to_view(rr, near), to_view(rr, far)) {
@@ -254,20 +265,54 @@ fn sweep_pixel(
         return None;
     }
     sum.candidates += 1;
+    // Every hypothesis' score in every usable reference, NCC_LANES hypotheses of one
+    // reference at a time (their sums run side by side; each is summed as `ncc` sums it)...
+    let refs = rays.len();
+    for (k, rr) in rays.iter().enumerate() {
+        if !sc.usable[k] {
+            continue;
+        }
+        for first in (0..s.steps).step_by(NCC_LANES) {
+            let views: [Option<Point2<f64>>; NCC_LANES] = std::array::from_fn(|l| {
+                let i = first + l;
+                (i < s.steps)
+                    .then(|| to_view(rr, d * sc.factors[i]))
+                    .flatten()
+            });
+            // A lane seen outside the reference scores -1 (it samples a seen lane's place).
+            let Some(seen) = views.iter().flatten().next() else {
+                for i in first..(first + NCC_LANES).min(s.steps) {
+                    sc.scores[i * refs + k] = -1.0;
+                }
+                continue;
+            };
+            let at = views.map(|v| v.unwrap_or(*seen));
+            let mut out = [0.0f32; NCC_LANES];
+            ncc_lanes(
+                &sc.patch,
+                rr.image,
+                &at.map(|v| v.x as f32),
+                &at.map(|v| v.y as f32),
+                r,
+                step,
+                &mut out,
+            );
+            for (l, (v, o)) in views.iter().zip(out).enumerate() {
+                if first + l < s.steps {
+                    sc.scores[(first + l) * refs + k] = if v.is_some() { o } else { -1.0 };
+                }
+            }
+        }
+    }
+    // ...summed per hypothesis over the references in order.
     sc.costs.iter_mut().for_each(|c| *c = 0.0);
     sc.counts.iter_mut().for_each(|c| *c = 0);
     for i in 0..s.steps {
-        let z = hypothesis(d, i as f64, s.steps, s.range);
-        for (k, rr) in rays.iter().enumerate() {
-            if !sc.usable[k] {
-                continue;
+        for k in 0..refs {
+            if sc.usable[k] {
+                sc.costs[i] += 1.0 - sc.scores[i * refs + k];
+                sc.counts[i] += 1;
             }
-            let ncc = match to_view(rr, z) {
-                Some(v) => ncc(&sc.patch, rr.image, v, r, step),
-                None => -1.0,
-            };
-            sc.costs[i] += 1.0 - ncc;
-            sc.counts[i] += 1;
         }
     }
     for (c, &k) in sc.costs.iter_mut().zip(&sc.counts) {
@@ -402,6 +447,7 @@ impl RatioGrid {
 
 /// NCC of a zero-mean unit-norm patch with the reference patch around `v`
 /// (fronto-parallel: the same pixel offsets).
+#[cfg(test)]
 fn ncc(patch: &[f32], img: &GrayView, v: Point2<f64>, r: isize, step: isize) -> f32 {
     let (cx, cy) = (v.x as f32, v.y as f32);
     let (mut dot, mut s1, mut s2) = (0.0f32, 0.0f32, 0.0f32);
@@ -415,13 +461,77 @@ fn ncc(patch: &[f32], img: &GrayView, v: Point2<f64>, r: isize, step: isize) -> 
             k += 1;
         }
     }
-    let n = patch.len() as f32;
+    ncc_of_sums(dot, s1, s2, patch.len() as f32)
+}
+
+/// The NCC from the sums over a patch of `n` samples `g` of `Σ patch·g`, `Σ g` and `Σ g²`.
+#[inline(always)]
+fn ncc_of_sums(dot: f32, s1: f32, s2: f32, n: f32) -> f32 {
     let var = s2 - s1 * s1 / n;
     if var <= 1e-3 {
         return 0.0;
     }
     // Σ patch = 0, so Σ patch·(g − mean g) = Σ patch·g.
     dot / var.sqrt()
+}
+
+/// Patches [`ncc_lanes`] scores at once.
+const NCC_LANES: usize = 8;
+
+simd_fn! {
+    /// `out[l]` = the NCC of `patch` around `(xs[l], ys[l])` for each lane, summed sample
+    /// by sample in `ncc`'s order (the same values bit for bit), the lanes side by side so
+    /// that their sums do not wait on one another.
+    fn ncc_lanes(
+        patch: &[f32],
+        img: &GrayView,
+        xs: &[f32; NCC_LANES],
+        ys: &[f32; NCC_LANES],
+        r: isize,
+        step: isize,
+        out: &mut [f32; NCC_LANES],
+    ) {
+        let [mut dot, mut s1, mut s2] = [[0.0f32; NCC_LANES]; 3];
+        let w = img.width;
+        let mut k = 0;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let (ox, oy) = ((dx * step) as f32, (dy * step) as f32);
+                // GrayView::bilinear per lane, in three passes so that the arithmetic
+                // vectorises: the corners' places and weights (truncation as `as usize`
+                // truncates these non-negative places), the corners read, then the blend.
+                let x: [f32; NCC_LANES] = std::array::from_fn(|l| xs[l] + ox);
+                let y: [f32; NCC_LANES] = std::array::from_fn(|l| ys[l] + oy);
+                let x0 = x.map(|v| v as i32);
+                let y0 = y.map(|v| v as i32);
+                let ax: [f32; NCC_LANES] = std::array::from_fn(|l| x[l] - x0[l] as f32);
+                let ay: [f32; NCC_LANES] = std::array::from_fn(|l| y[l] - y0[l] as f32);
+                let mut corners = [[0.0f32; NCC_LANES]; 4];
+                for l in 0..NCC_LANES {
+                    let i = y0[l] as usize * w + x0[l] as usize;
+                    let (top, bottom) = (&img.data[i..i + 2], &img.data[i + w..i + w + 2]);
+                    corners[0][l] = top[0];
+                    corners[1][l] = top[1];
+                    corners[2][l] = bottom[0];
+                    corners[3][l] = bottom[1];
+                }
+                let [a, b, c, d] = corners;
+                let p = patch[k];
+                for l in 0..NCC_LANES {
+                    let top = a[l] + ax[l] * (b[l] - a[l]);
+                    let g = top + ay[l] * (c[l] + ax[l] * (d[l] - c[l]) - top);
+                    dot[l] += p * g;
+                    s1[l] += g;
+                    s2[l] += g * g;
+                }
+                k += 1;
+            }
+        }
+        let n = patch.len() as f32;
+        for l in 0..NCC_LANES {
+            out[l] = ncc_of_sums(dot[l], s1[l], s2[l], n);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -450,6 +560,42 @@ mod tests {
 
     fn settings() -> MultiviewConfig {
         MultiviewConfig::default()
+    }
+
+    #[test]
+    fn lanes_score_as_one_patch_at_a_time_bit_for_bit() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let (w, h) = (64usize, 48usize);
+        let img = GrayView {
+            width: w,
+            height: h,
+            data: (0..w * h).map(|_| rng.random_range(0.0..255.0)).collect(),
+        };
+        // A flat patch too (variance below the floor: score 0).
+        let flat = GrayView {
+            width: w,
+            height: h,
+            data: vec![17.0; w * h],
+        };
+        for (r, step) in [(2isize, 2isize), (1, 1), (3, 1)] {
+            let n = ((2 * r + 1) * (2 * r + 1)) as usize;
+            let patch: Vec<f32> = (0..n).map(|_| rng.random_range(-0.5..0.5)).collect();
+            let reach = (r * step) as f32 + 1.0;
+            for image in [&img, &flat] {
+                let xs: [f32; NCC_LANES] =
+                    std::array::from_fn(|_| rng.random_range(reach..w as f32 - 1.0 - reach));
+                let ys: [f32; NCC_LANES] =
+                    std::array::from_fn(|_| rng.random_range(reach..h as f32 - 1.0 - reach));
+                let mut out = [f32::NAN; NCC_LANES];
+                ncc_lanes(&patch, image, &xs, &ys, r, step, &mut out);
+                for l in 0..NCC_LANES {
+                    let v = Point2::new(xs[l] as f64, ys[l] as f64);
+                    let one = ncc(&patch, image, v, r, step);
+                    assert_eq!(out[l].to_bits(), one.to_bits(), "lane {l}, r {r}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -618,6 +618,9 @@ mod tests {
         check(6, 9, 3, 1, 1, [7, 11]); // L3, L5, L7, L9 with few channels (direct)
         check(16, 9, 3, 1, 1, [7, 11]); // the same through Winograd's F(4x4, 3x3)
         check(8, 5, 4, 2, 1, [12, 10]); // L2, L4, L6 through F(5x5, 2x2)
+        check(8, 5, 4, 2, 0, [12, 10]); // no padding, and two columns of it, on each side
+        check(8, 5, 4, 2, 2, [12, 10]);
+        check(5, 7, 4, 2, 2, [12, 8]);
         check(9, 4, 1, 1, 0, [5, 6]); // L8, L10
         check(3, 3, 5, 1, 2, [6, 6]);
     }

@@ -53,17 +53,24 @@ impl GrayView {
         self.data[y * self.width + x]
     }
 
-    /// Bilinear sample; the caller keeps `(x, y)` inside `[0, w - 1) x [0, h - 1)`.
-    #[inline(always)]
+    /// Bilinear sample; the caller keeps `(x, y)` inside `[0, w - 1) x [0, h - 1)` (the
+    /// reference [`ncc_lanes`] is tested against).
+    #[cfg(test)]
     fn bilinear(&self, x: f32, y: f32) -> f32 {
         let (x0, y0) = (x as usize, y as usize);
         let (ax, ay) = (x - x0 as f32, y - y0 as f32);
         let i = y0 * self.width + x0;
         let (a, b) = (self.data[i], self.data[i + 1]);
         let (c, d) = (self.data[i + self.width], self.data[i + self.width + 1]);
-        let top = a + ax * (b - a);
-        top + ay * (c + ax * (d - c) - top)
+        blend(a, b, c, d, ax, ay)
     }
+}
+
+/// The bilinear blend of a cell's corners `a` `b` (top) and `c` `d` (bottom) at `(ax, ay)`.
+#[inline(always)]
+fn blend(a: f32, b: f32, c: f32, d: f32, ax: f32, ay: f32) -> f32 {
+    let top = a + ax * (b - a);
+    top + ay * (c + ax * (d - c) - top)
 }
 
 /// An earlier keyframe the sweep compares against: its grey view and its pose
@@ -497,7 +504,7 @@ simd_fn! {
         for dy in -r..=r {
             for dx in -r..=r {
                 let (ox, oy) = ((dx * step) as f32, (dy * step) as f32);
-                // GrayView::bilinear per lane, in three passes so that the arithmetic
+                // `GrayView::bilinear` per lane, in three passes so that the arithmetic
                 // vectorises: the corners' places and weights (truncation as `as usize`
                 // truncates these non-negative places), the corners read, then the blend.
                 let x: [f32; NCC_LANES] = std::array::from_fn(|l| xs[l] + ox);
@@ -518,8 +525,7 @@ simd_fn! {
                 let [a, b, c, d] = corners;
                 let p = patch[k];
                 for l in 0..NCC_LANES {
-                    let top = a[l] + ax[l] * (b[l] - a[l]);
-                    let g = top + ay[l] * (c[l] + ax[l] * (d[l] - c[l]) - top);
+                    let g = blend(a[l], b[l], c[l], d[l], ax[l], ay[l]);
                     dot[l] += p * g;
                     s1[l] += g;
                     s2[l] += g * g;
